@@ -1,0 +1,1 @@
+"""SQManip client SDK."""
