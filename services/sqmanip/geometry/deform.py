@@ -51,7 +51,10 @@ def taper_jacobian(x: torch.Tensor, k, a3) -> torch.Tensor:
     """Jacobian ``dD_t/dx`` (2.3.14), shape ``(..., 3, 3)``."""
     px, py, pz = _split(x)
     t = taper_factor(pz, k, a3)
-    dt = torch.broadcast_to(_t(k, x) / _t(a3, x), t.shape)
+    # d t_k / dz = k / a3, and 0 where the clamp of taper_factor is active.
+    raw = _t(k, x) * pz / _t(a3, x) + 1.0
+    dt = torch.where(raw > TAPER_MIN, _t(k, x) / _t(a3, x), torch.zeros_like(raw))
+    dt = torch.broadcast_to(dt, t.shape)
     zero, one = torch.zeros_like(t), torch.ones_like(t)
     rows = [
         torch.stack([t, zero, dt * px], -1),
@@ -91,7 +94,8 @@ def bend_inverse(X: torch.Tensor, b, alpha) -> torch.Tensor:
     b = _t(b, X).clamp_min(0.0)
     R = px * ca + py * sa  # R'
     c = 1.0 - b * R  # b (1/b - R')
-    root = torch.sqrt(c * c + (b * pz) ** 2)
+    # Clamped so the gradient stays finite at the centre of the bending circle (c = Z = 0).
+    root = torch.sqrt((c * c + (b * pz) ** 2).clamp_min(1e-30))
     # r' = 1/b - sqrt(Z^2 + (1/b - R')^2) = (R'(2 - bR') - b Z^2) / (1 + root)
     r = (R * (2.0 - b * R) - b * pz * pz) / (1.0 + root)
     gamma = torch.atan2(b * pz, c)

@@ -7,7 +7,8 @@ params of shape ``(..., 9)`` (one shape per leading batch entry) and return ``(.
 
 Convention:
 - the deformed shape is ``f o D^{-1}`` with ``D = D_b o D_t`` (2.3.22); k = b = 0 is plain;
-- shape exponents are clamped to ``[0.2, 1.7]``; ``f`` saturates at a large finite value far away;
+- shape exponents are clamped to ``[0.2, 1.7]``; ``f`` saturates at ``e^MAX_LOG`` (~5.5e34) far away
+  (computed in the log domain, so no power overflows, even in float32);
 - :func:`implicit_homogeneous` is ``f^{e1}`` (the ``S^{e1}`` of C.2): ``< 1`` inside, ``> 1`` outside,
   and for superellipsoids it grows like distance squared, so thresholds behave alike for all shapes;
 - the radial distance at the exact origin of a superellipsoid is taken along +z (``= a3``).
@@ -50,6 +51,8 @@ def is_deformed(params: torch.Tensor) -> bool:
 
 def undeform(x: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
     """Map object-frame points ``(..., N, 3)`` to the undeformed canonical frame: ``D^{-1}(x)``."""
+    if not is_deformed(params):  # D is exactly the identity for k = b = 0; skip its cost
+        return x
     _, _, a3, _, _, k, b, alpha, _ = unpack(params)
     return deform_inverse(x, k, a3, b, alpha)
 
@@ -57,46 +60,77 @@ def undeform(x: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
 # --- canonical (undeformed) implicit functions -------------------------------------------------
 
 
+MAX_LOG = 80.0
+"""``log`` of the value at which implicit functions saturate (``e^80 ~ 5.5e34``, finite in float32)."""
+
+
 def _superellipsoid_parts(x, a1, a2, a3, e1, e2):
-    """Return ``(r, g)`` with ``f(x) = r^{2/e1} g`` and ``g`` in ``[1, 2^{e2/e1} + 1]`` (scale trick)."""
+    """Return ``(r, g)`` with ``f(x) = r^{2/e1} g`` and ``g`` in ``[1, 2^{e2/e1} + 1]`` (scale trick).
+
+    ``r`` is clamped to ``>= tiny``; where it is (the origin), ``g`` is meaningless but finite.
+    """
     q = torch.stack([(x[..., 0] / a1).abs(), (x[..., 1] / a2).abs(), (x[..., 2] / a3).abs()], -1)
     r = q.amax(-1).clamp_min(tiny(x.dtype))
     u = q / r.unsqueeze(-1)
     inner = (abs_pow(u[..., 0], 2 / e2) + abs_pow(u[..., 1], 2 / e2)).clamp_min(tiny(x.dtype))
     g = inner.pow(e2 / e1) + abs_pow(u[..., 2], 2 / e1)
-    return r, g
+    return r, g.clamp_min(tiny(x.dtype))
 
 
-def superellipsoid_implicit(x, a1, a2, a3, e1, e2) -> torch.Tensor:
-    """Superellipsoid inside-outside function ``f`` (2.2.1)."""
+def _xy_parts(x, a1, a2, e2):
+    """``(s, p)`` with ``|x/a1|^{2/e2} + |y/a2|^{2/e2} = s^{2/e2} p``, ``p`` in ``[1, 2]``.
+
+    Scaling by ``s = max(|x/a1|, |y/a2|)`` keeps the powers from overflowing far away.
+    """
+    q1, q2 = (x[..., 0] / a1).abs(), (x[..., 1] / a2).abs()
+    s = torch.maximum(q1, q2).clamp_min(tiny(x.dtype))
+    p = (abs_pow(q1 / s, 2 / e2) + abs_pow(q2 / s, 2 / e2)).clamp_min(tiny(x.dtype))
+    return s, p
+
+
+def superellipsoid_implicit(x, a1, a2, a3, e1, e2, max_log: float = MAX_LOG) -> torch.Tensor:
+    """Superellipsoid inside-outside function ``f`` (2.2.1), saturating at ``e^max_log``."""
     r, g = _superellipsoid_parts(x, a1, a2, a3, e1, e2)
     logf = (2 / e1) * torch.log(r) + torch.log(g)
-    return torch.exp(logf.clamp_max(80.0)).clamp_max(finite_max(x.dtype))
+    return torch.exp(logf.clamp_max(max_log)).clamp_max(finite_max(x.dtype))
 
 
-def superparaboloid_implicit(x, a1, a2, a3, e1, e2) -> torch.Tensor:
-    """Superparaboloid ``f`` (2.2.7) closed by the cap ``z = 0`` of its parametrisation (2.2.8)."""
-    inner = abs_pow(x[..., 0] / a1, 2 / e2) + abs_pow(x[..., 1] / a2, 2 / e2)
-    f = inner.clamp_min(tiny(x.dtype)).pow(e2 / e1) - x[..., 2] / a3
-    return torch.maximum(f, 1.0 + x[..., 2] / a3).clamp(-finite_max(x.dtype), finite_max(x.dtype))
+def superparaboloid_implicit(x, a1, a2, a3, e1, e2, max_log: float = MAX_LOG) -> torch.Tensor:
+    """Superparaboloid ``f`` (2.2.7) closed by the cap ``z = 0`` of its parametrisation (2.2.8).
+
+    ``f = max(P^{e2/e1} - z/a3, 1 + z/a3) >= 1/2`` with ``P = |x/a1|^{2/e2} + |y/a2|^{2/e2}``:
+    the solid is the paraboloid bowl from the tip ``z = -a3`` up to the flat cap at ``z = 0``.
+    """
+    s, p = _xy_parts(x, a1, a2, e2)
+    log_term = (2 / e1) * torch.log(s) + (e2 / e1) * torch.log(p)
+    term = torch.exp(log_term.clamp_max(max_log))
+    f = torch.maximum(term - x[..., 2] / a3, 1.0 + x[..., 2] / a3)
+    return f.clamp(-finite_max(x.dtype), finite_max(x.dtype))
 
 
-def supertoroid_implicit(x, a1, a2, a3, e1, e2, a4) -> torch.Tensor:
-    """Supertoroid ``f`` (2.2.9); ``a4`` sets the hole, ``a1, a2`` the tube thickness."""
-    inner = abs_pow(x[..., 0] / a1, 2 / e2) + abs_pow(x[..., 1] / a2, 2 / e2)
-    ring = inner.clamp_min(tiny(x.dtype)).pow(e2 / 2) - a4
-    f = abs_pow(ring, 2 / e1) + abs_pow(x[..., 2] / a3, 2 / e1)
-    return f.clamp_max(finite_max(x.dtype))
+def supertoroid_implicit(x, a1, a2, a3, e1, e2, a4, max_log: float = MAX_LOG) -> torch.Tensor:
+    """Supertoroid ``f`` (2.2.9); ``a4`` sets the hole, ``a1, a2`` the tube thickness.
+
+    Evaluated as ``m^{2/e1} (|ring/m|^{2/e1} + |z/(a3 m)|^{2/e1})`` with
+    ``m = max(|ring|, |z/a3|)`` so it saturates instead of overflowing far away.
+    """
+    s, p = _xy_parts(x, a1, a2, e2)
+    ring = s * p.pow(e2 / 2) - a4
+    zz = (x[..., 2] / a3).abs()
+    m = torch.maximum(ring.abs(), zz).clamp_min(tiny(x.dtype))
+    g = (abs_pow(ring / m, 2 / e1) + abs_pow(zz / m, 2 / e1)).clamp_min(tiny(x.dtype))
+    logf = (2 / e1) * torch.log(m) + torch.log(g)
+    return torch.exp(logf.clamp_max(max_log)).clamp_max(finite_max(x.dtype))
 
 
-def _canonical(x, parts, kind: int) -> torch.Tensor:
+def _canonical(x, parts, kind: int, max_log: float = MAX_LOG) -> torch.Tensor:
     a1, a2, a3, e1, e2, _, _, _, a4 = parts
     if kind == SUPERELLIPSOID:
-        return superellipsoid_implicit(x, a1, a2, a3, e1, e2)
+        return superellipsoid_implicit(x, a1, a2, a3, e1, e2, max_log)
     if kind == SUPERPARABOLOID:
-        return superparaboloid_implicit(x, a1, a2, a3, e1, e2)
+        return superparaboloid_implicit(x, a1, a2, a3, e1, e2, max_log)
     if kind == SUPERTOROID:
-        return supertoroid_implicit(x, a1, a2, a3, e1, e2, a4)
+        return supertoroid_implicit(x, a1, a2, a3, e1, e2, a4, max_log)
     raise ValueError(
         f"unknown superquadric kind {kind!r}; expected one of {list(range(len(KINDS)))}"
     )
@@ -122,8 +156,9 @@ def implicit_homogeneous(
     if kind == SUPERELLIPSOID:
         r, g = _superellipsoid_parts(xc, *parts[:5])
         return (r * r * g.pow(parts[3])).clamp_max(finite_max(x.dtype))
-    f = _canonical(xc, parts, kind)
-    return torch.sign(f) * abs_pow(f, parts[3])
+    f = _canonical(xc, parts, kind)  # >= 1/2 for superparaboloids, >= 0 for supertoroids
+    logf = parts[3] * torch.log(f.clamp_min(tiny(x.dtype)))
+    return torch.exp(logf.clamp_max(MAX_LOG))
 
 
 def radial_distance(x: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
@@ -136,10 +171,13 @@ def radial_distance(x: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
     xc = undeform(x, params)
     r, g = _superellipsoid_parts(xc, *parts[:5])
     norm = torch.linalg.vector_norm(x, dim=-1)
-    # ||x0|| f^{-e1/2}(xc) with f^{e1/2} = r g^{e1/2}; r is clamped away from 0 so this is finite.
-    surface = norm / (r * g.pow(parts[3] / 2))
-    at_origin = norm <= tiny(x.dtype)
-    surface = torch.where(at_origin, parts[2].expand_as(norm), surface)
+    # ||x0|| f^{-e1/2}(xc) with f^{e1/2} = r g^{e1/2}. Where r was not clamped, g >= 1 and the
+    # quotient is finite; where it was (xc at the origin, to the dtype's resolution) the ray
+    # direction is undefined and +z is used. The denominator is replaced *before* dividing so
+    # neither the value nor the gradient of the unused branch can be inf/NaN.
+    at_origin = r <= tiny(x.dtype)
+    den = torch.where(at_origin, torch.ones_like(r), r * g.pow(parts[3] / 2))
+    surface = torch.where(at_origin, parts[2], norm / den)
     return (norm - surface).abs()
 
 
@@ -162,11 +200,14 @@ def superellipsoid_gradient_direction(xc, a1, a2, a3, e1, e2) -> torch.Tensor:
 def _canonical_gradient(xc, parts, kind):
     if kind == SUPERELLIPSOID:
         return superellipsoid_gradient_direction(xc, *parts[:5])
+    # Autograd in float64 with a saturation far above float32's range, so the direction stays
+    # defined far away; normalised before casting back so it cannot overflow.
     with torch.enable_grad():
-        xg = xc.detach().requires_grad_(True)
-        f = _canonical(xg, [p.detach() for p in parts], kind)
+        xg = xc.detach().to(torch.float64).requires_grad_(True)
+        f = _canonical(xg, [p.detach().to(torch.float64) for p in parts], kind, max_log=700.0)
         (grad,) = torch.autograd.grad(f.sum(), xg)
-    return grad
+    grad = grad / torch.linalg.vector_norm(grad, dim=-1, keepdim=True).clamp_min(1e-300)
+    return grad.to(xc.dtype)
 
 
 def normal(x: torch.Tensor, params: torch.Tensor, kind: int = SUPERELLIPSOID) -> torch.Tensor:

@@ -27,8 +27,10 @@ def _per_kind(fn, local, params, kinds):
         return fn(local, params, int(unique[0]))
     out = None
     for kind in unique:
-        mask = (kinds == kind).view(*([1] * (params.ndim - 2)), -1, 1)
         value = fn(local, params, int(kind))
+        # (M,) -> (M, 1) for values (..., M, N) and (M, 1, 1) for normals (..., M, N, 3).
+        trailing = value.ndim - (params.ndim - 1)
+        mask = (kinds.to(value.device) == kind).reshape(-1, *([1] * trailing))
         out = value if out is None else torch.where(mask, value, out)
     return out
 
@@ -59,7 +61,7 @@ def world_normal(
 def union_implicit(points, params, poses, kinds=SUPERELLIPSOID) -> torch.Tensor:
     """``F(x) = min_i S_i(x)`` (C.2.5), ``(..., N)``; +inf for an empty set of shapes."""
     if params.shape[-2] == 0:
-        return torch.full(points.shape[:-1], float("inf"), dtype=points.dtype)
+        return torch.full(points.shape[:-1], float("inf"), dtype=points.dtype, device=points.device)
     return world_implicit(points, params, poses, kinds).amin(-2)
 
 
