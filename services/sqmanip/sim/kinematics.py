@@ -1,0 +1,143 @@
+"""Panda forward/inverse kinematics and reachability with pinocchio on the PyBullet Panda URDF.
+
+Why pinocchio and not ``pybullet.calculateInverseKinematics``: PyBullet's IK neither reports
+convergence nor respects joint limits reliably, and the thesis decides kinematic feasibility
+of grasp poses by solving IK (3.5.3, B.5.13). We load the *same* URDF PyBullet simulates
+(``franka_panda/panda.urdf`` from ``pybullet_data``), lock the two finger joints, and solve
+damped least squares IK on the 7 arm joints with the joint limits enforced by clamping.
+A pose is *reachable* when the IK converges within tolerance inside the joint limits.
+
+The tool frame is ``panda_grasptarget`` (0.105 m below the hand along its z axis): the centre
+between the fingertips, z = approach direction, y = finger closing axis.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+
+import numpy as np
+import pinocchio as pin
+import pybullet_data
+
+PANDA_URDF = os.path.join(pybullet_data.getDataPath(), "franka_panda", "panda.urdf")
+ARM_JOINTS = tuple(f"panda_joint{i}" for i in range(1, 8))
+FINGER_JOINTS = ("panda_finger_joint1", "panda_finger_joint2")
+TCP_FRAME = "panda_grasptarget"
+HAND_FRAME = "panda_hand"
+READY = np.array([0.0, -0.785398, 0.0, -2.356194, 0.0, 1.570796, 0.785398])
+"""Franka's 'ready' configuration, the first IK restart."""
+TCP_OFFSET = 0.105
+"""Distance from the hand frame to the tool centre point along the hand z axis (m)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class IKResult:
+    """Outcome of one IK solve: joint angles ``q (7,)``, convergence flag and final errors."""
+
+    q: np.ndarray
+    success: bool
+    position_error: float
+    """Final TCP position error (m)."""
+    rotation_error: float
+    """Final TCP rotation error (rad)."""
+    iterations: int
+
+
+class PandaKinematics:
+    """Kinematics of the 7 arm joints (fingers locked) with an optional base pose in the world.
+
+    ``base_pose`` (4 x 4) maps the robot base frame to the world; every pose in and out of this
+    class is in world coordinates.
+    """
+
+    def __init__(self, base_pose: np.ndarray | None = None, urdf_path: str = PANDA_URDF) -> None:
+        full = pin.buildModelFromUrdf(urdf_path)
+        lock = [full.getJointId(n) for n in FINGER_JOINTS]
+        self.model = pin.buildReducedModel(full, lock, pin.neutral(full))
+        self.data = self.model.createData()
+        self.tcp_id = self.model.getFrameId(TCP_FRAME)
+        self.hand_id = self.model.getFrameId(HAND_FRAME)
+        self.lower = np.array(self.model.lowerPositionLimit, dtype=np.float64)
+        self.upper = np.array(self.model.upperPositionLimit, dtype=np.float64)
+        self.base_pose = np.eye(4) if base_pose is None else np.asarray(base_pose, np.float64)
+        self._base_inv = np.linalg.inv(self.base_pose)
+
+    @property
+    def nq(self) -> int:
+        return int(self.model.nq)
+
+    def clamp(self, q: np.ndarray) -> np.ndarray:
+        """Project joint angles ``(7,)`` into the limits (with a 1e-4 rad margin)."""
+        return np.clip(q, self.lower + 1e-4, self.upper - 1e-4)
+
+    def within_limits(self, q: np.ndarray) -> bool:
+        return bool(np.all(q >= self.lower - 1e-6) and np.all(q <= self.upper + 1e-6))
+
+    def fk(self, q: np.ndarray, frame: str = TCP_FRAME) -> np.ndarray:
+        """World pose (4 x 4) of ``frame`` (default: TCP) at joint angles ``q (7,)``."""
+        fid = self.model.getFrameId(frame)
+        pin.framesForwardKinematics(self.model, self.data, np.asarray(q, np.float64))
+        return self.base_pose @ self.data.oMf[fid].homogeneous
+
+    def ik(
+        self,
+        target: np.ndarray,
+        q0: np.ndarray,
+        *,
+        pos_tol: float = 1e-3,
+        rot_tol: float = 5e-3,
+        max_iters: int = 200,
+        damping: float = 1e-4,
+        restarts: int = 8,
+        rng: np.random.Generator | None = None,
+    ) -> IKResult:
+        """Damped least squares IK for the TCP pose ``target`` (world, 4 x 4), seeded at ``q0``.
+
+        Each iteration takes ``dq = J^T (J J^T + lambda I)^{-1} e`` with the local SE(3) log
+        error ``e``, then clamps ``q`` into the joint limits. If the seed fails, up to
+        ``restarts`` seeds (the ready pose, then draws from ``rng`` (uniform inside the limits, seeded by the caller
+        for determinism)) are tried. Returns the best solution found and whether it converged.
+        """
+        target_base = pin.SE3(self._base_inv @ np.asarray(target, np.float64))
+        rng = rng if rng is not None else np.random.default_rng(0)
+        best: IKResult | None = None
+        seeds = [self.clamp(np.asarray(q0, np.float64)), READY.copy()]
+        for _ in range(restarts - 1):
+            seeds.append(rng.uniform(self.lower, self.upper))
+        for seed in seeds:
+            res = self._solve(target_base, seed, pos_tol, rot_tol, max_iters, damping)
+            if res.success:
+                return res
+            if best is None or res.position_error + 0.1 * res.rotation_error < (
+                best.position_error + 0.1 * best.rotation_error
+            ):
+                best = res
+        return best  # type: ignore[return-value]  # seeds is never empty
+
+    def _solve(self, target: pin.SE3, q, pos_tol, rot_tol, max_iters, damping) -> IKResult:
+        model, data = self.model, self.data
+        q = q.copy()
+        err = np.full(6, np.inf)
+        for it in range(max_iters):
+            pin.framesForwardKinematics(model, data, q)
+            cur = data.oMf[self.tcp_id]
+            err = pin.log6(cur.actInv(target)).vector
+            if np.linalg.norm(err[:3]) < pos_tol and np.linalg.norm(err[3:]) < rot_tol:
+                return IKResult(
+                    q, True, float(np.linalg.norm(err[:3])), float(np.linalg.norm(err[3:])), it
+                )
+            J = pin.computeFrameJacobian(model, data, q, self.tcp_id, pin.LOCAL)
+            dq = J.T @ np.linalg.solve(J @ J.T + damping * np.eye(6), err)
+            step = np.linalg.norm(dq)
+            if step > 0.5:
+                dq *= 0.5 / step
+            q = self.clamp(q + dq)
+        ok = np.linalg.norm(err[:3]) < pos_tol and np.linalg.norm(err[3:]) < rot_tol
+        return IKResult(
+            q, bool(ok), float(np.linalg.norm(err[:3])), float(np.linalg.norm(err[3:])), max_iters
+        )
+
+    def reachable(self, target: np.ndarray, q0: np.ndarray, **kwargs) -> bool:
+        """True when the IK for ``target`` converges inside the joint limits."""
+        return self.ik(target, q0, **kwargs).success

@@ -1,0 +1,667 @@
+"""The ``Simulator``: a headless PyBullet Panda with tabletop/shelf scenes, cameras and actions.
+
+One instance owns one PyBullet DIRECT client; use it from one thread only. Everything is
+deterministic for a given scene spec or seed: fixed time step and solver iterations, seeded
+NumPy generators for scene sampling, IK restarts and sensor noise.
+
+Actions (Ch. 4.5, 5.4.4): ``push(p, v)`` (tool to ``p`` with the Fig. 4.6 orientation, then to
+``p + v`` through 10 via points, slowly), ``grasp(pose, width)`` (pre-grasp 10 cm back along the
+tool z axis, approach, close, lift 10 cm, hold), ``pick_and_place``. Every action first checks
+its arguments (``ValidationError``: non-finite, out of workspace, too wide) and then the
+reachability (pinocchio IK) and static collisions (table, pedestal, shelf) of its key
+configurations and of the free-space joint paths (``PreconditionError`` with the reason), so a
+refused action never moves the robot.
+"""
+
+from __future__ import annotations
+
+import contextlib
+
+import numpy as np
+import pybullet as p
+
+from ..errors import PreconditionError, ValidationError
+from . import scene as sc
+from .actions import (
+    ActionResult,
+    ObjectState,
+    Observation,
+    SimState,
+    as_point,
+    as_pose,
+    as_width,
+    lifted,
+    offset_along_z,
+    push_tool_rotation,
+    tool_pose,
+)
+from .camera import (
+    Intrinsics,
+    add_point_noise,
+    backproject,
+    linearize_depth,
+    look_at,
+    projection_matrix,
+    view_matrix,
+)
+from .config import (
+    GRIPPER_MAX_WIDTH,
+    HOME_SHELF,
+    HOME_TABLETOP,
+    LABEL_BACKGROUND,
+    LABEL_ROBOT,
+    LABEL_STATIC,
+    ROBOT_BASE_POSITION,
+    TABLE_SIZE,
+    WORKSPACE_CENTER,
+    WORKSPACE_SIZE,
+    SimConfig,
+)
+from .kinematics import PandaKinematics
+from .robot import FINGER_INDICES, HAND_LINK, PandaRobot
+
+WRIST_CAMERA_OFFSET = np.array(
+    [[0.0, -1.0, 0.0, 0.05], [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.02], [0, 0, 0, 1.0]]
+)
+"""Optical frame of the wrist camera in the ``panda_hand`` frame: 5 cm off the hand axis,
+looking along the approach (hand z), image x along -hand y."""
+
+
+def workspace_bounds() -> np.ndarray:
+    """``(2, 3)`` lower/upper corners of the tabletop workspace (Ch. 4.5) in the world."""
+    cx, cy = WORKSPACE_CENTER
+    sx, sy, sz = WORKSPACE_SIZE
+    return np.array([[cx - sx / 2, cy - sy / 2, 0.0], [cx + sx / 2, cy + sy / 2, sz]])
+
+
+class Simulator:
+    """PyBullet Panda simulator (domain API; a gRPC servicer wraps these methods)."""
+
+    def __init__(self, config: SimConfig | None = None) -> None:
+        self.config = config or SimConfig()
+        self.client = p.connect(p.DIRECT)
+        base = np.eye(4)
+        base[:3, 3] = ROBOT_BASE_POSITION
+        self.kin = PandaKinematics(base)
+        self._spec = sc.SceneSpec()
+        self._bodies: list[int] = []
+        self._static: dict[int, str] = {}
+        self._time = 0.0
+        self._held: int | None = None
+        self._noise_rng = np.random.default_rng(0)
+        self._ik_rng = np.random.default_rng(0)
+        self.robot: PandaRobot | None = None
+        self.reset(self._spec)
+
+    # --- lifecycle ----------------------------------------------------------------------------
+
+    def close(self) -> None:
+        if self.client >= 0:
+            p.disconnect(self.client)
+            self.client = -1
+
+    def __enter__(self) -> Simulator:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        with contextlib.suppress(Exception):  # interpreter shutdown
+            self.close()
+
+    @property
+    def scene_spec(self) -> sc.SceneSpec:
+        """The current scene (settled poses after a random reset): save it to replay."""
+        return self._spec
+
+    @property
+    def home(self) -> np.ndarray:
+        return HOME_SHELF if self._spec.kind == "shelf" else HOME_TABLETOP
+
+    def _step(self) -> None:
+        p.stepSimulation(physicsClientId=self.client)
+        self._time += self.config.time_step
+
+    def reset(
+        self,
+        scene: sc.SceneSpec | dict | None = None,
+        *,
+        seed: int | None = None,
+        n_objects: int = 4,
+        kind: str = "tabletop",
+        object_kinds: tuple[str, ...] = ("box", "cylinder"),
+    ) -> SimState:
+        """Rebuild the world from ``scene`` (spec or its dict), or sample a random scene.
+
+        With ``seed`` (and no ``scene``) ``n_objects`` random boxes/cylinders are dropped one by
+        one into the workspace (or shelf), each allowed to settle; a drop that falls over (for
+        upright objects), interpenetrates another object or leaves the workspace is removed and
+        redrawn (up to 20 tries). The settled poses become ``scene_spec``.
+        """
+        if isinstance(scene, dict):
+            scene = sc.SceneSpec.from_dict(scene)
+        if scene is None and seed is None:
+            raise ValidationError("reset needs a scene spec or a seed")
+        if scene is not None and seed is not None:
+            raise ValidationError("give either a scene spec or a seed, not both")
+        if scene is None and not 0 <= n_objects <= 20:
+            raise ValidationError(f"n_objects must be in 0..20, got {n_objects}")
+        cid = self.client
+        cfg = self.config
+        p.resetSimulation(physicsClientId=cid)
+        p.setPhysicsEngineParameter(
+            fixedTimeStep=cfg.time_step,
+            numSolverIterations=cfg.solver_iterations,
+            numSubSteps=0,
+            deterministicOverlappingPairs=1,
+            physicsClientId=cid,
+        )
+        p.setGravity(0, 0, cfg.gravity, physicsClientId=cid)
+        self._time = 0.0
+        self._held = None
+        self._bodies = []
+        self._static = {}
+        layout = scene.kind if scene is not None else kind
+        self._build_static(layout)
+        self.robot = PandaRobot(cid, ROBOT_BASE_POSITION, cfg, self._step)
+        home = HOME_SHELF if layout == "shelf" else HOME_TABLETOP
+        self.robot.reset_q(home, 0.0)
+        if scene is not None:
+            self._spec = scene
+            for spec in scene.objects:
+                self._bodies.append(sc.spawn(spec, cid))
+            self._noise_rng = np.random.default_rng(scene.seed)
+        else:
+            self._spec = self._random_scene(layout, int(seed), n_objects, object_kinds)
+            self._noise_rng = np.random.default_rng(int(seed))
+        self._ik_rng = np.random.default_rng(self._spec.seed + 1)
+        return self.get_state()
+
+    def _add_static_box(self, name: str, half, center, color) -> int:
+        cid = self.client
+        col = p.createCollisionShape(p.GEOM_BOX, halfExtents=list(half), physicsClientId=cid)
+        vis = p.createVisualShape(
+            p.GEOM_BOX, halfExtents=list(half), rgbaColor=list(color), physicsClientId=cid
+        )
+        body = p.createMultiBody(0.0, col, vis, list(center), physicsClientId=cid)
+        p.changeDynamics(body, -1, lateralFriction=0.5, physicsClientId=cid)
+        self._static[body] = name
+        return body
+
+    def _build_static(self, layout: str) -> None:
+        bx, by, bz = ROBOT_BASE_POSITION
+        self._add_static_box("pedestal", (0.12, 0.12, bz / 2), (bx, by, bz / 2), (0.3, 0.3, 0.3, 1))
+        if layout == "tabletop":
+            tx, ty, tz = TABLE_SIZE
+            center = (WORKSPACE_CENTER[0] + 0.1, WORKSPACE_CENTER[1], -tz / 2)
+            self._add_static_box("table", (tx / 2, ty / 2, tz / 2), center, (0.75, 0.7, 0.6, 1))
+        else:
+            self._add_static_box("floor", (1.5, 1.5, 0.01), (0.5, 0.0, -0.01), (0.6, 0.6, 0.6, 1))
+            for name, half, center in self.config.shelf.boxes():
+                self._add_static_box(name, half, center, (0.55, 0.4, 0.25, 1))
+
+    # --- random scenes -------------------------------------------------------------------------
+
+    def _drop_region(self, layout: str) -> tuple[np.ndarray, float]:
+        if layout == "shelf":
+            b = self.config.shelf.inner_bounds()
+            return np.array(
+                [[b[0, 0] + 0.06, b[0, 1] + 0.06], [b[1, 0] - 0.06, b[1, 1] - 0.06]]
+            ), b[0, 2]
+        w = workspace_bounds()
+        return np.array([[w[0, 0] + 0.06, w[0, 1] + 0.06], [w[1, 0] - 0.06, w[1, 1] - 0.06]]), 0.0
+
+    def _random_scene(self, layout, seed, n, object_kinds) -> sc.SceneSpec:
+        rng = np.random.default_rng(seed)
+        region, floor = self._drop_region(layout)
+        specs: list[sc.ObjectSpec] = []
+        for _ in range(n):
+            for _attempt in range(20):
+                spec = sc.random_object(rng, object_kinds)
+                if (
+                    layout == "shelf"
+                    and sc.half_height(spec) * 2 > self.config.shelf.inner_height - 0.1
+                ):
+                    continue
+                xy = rng.uniform(region[0], region[1])
+                yaw = rng.uniform(-np.pi, np.pi)
+                z = floor + sc.half_height(spec) + 0.01
+                quat = p.getQuaternionFromEuler([0, 0, yaw])
+                spec = spec.with_pose((xy[0], xy[1], z), quat)
+                body = sc.spawn(spec, self.client)
+                self._settle([*self._bodies, body])
+                if self._acceptable(body, spec, layout):
+                    self._bodies.append(body)
+                    specs.append(spec)
+                    break
+                p.removeBody(body, physicsClientId=self.client)
+        self._settle(self._bodies)
+        settled = []
+        for spec, body in zip(specs, self._bodies, strict=True):
+            pos, orn = p.getBasePositionAndOrientation(body, physicsClientId=self.client)
+            settled.append(spec.with_pose(pos, orn))
+        # Replaying must start from rest: zero the velocities left by settling.
+        for body in self._bodies:
+            p.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0], physicsClientId=self.client)
+        return sc.SceneSpec(layout, tuple(settled), seed)
+
+    def _settle(self, bodies: list[int]) -> None:
+        steps = int(self.config.settle_time / self.config.time_step)
+        for i in range(steps):
+            self._step()
+            if i % 10 == 9 and i > 30:
+                moving = False
+                for b in bodies:
+                    lv, av = p.getBaseVelocity(b, physicsClientId=self.client)
+                    if np.linalg.norm(lv) > 2e-3 or np.linalg.norm(av) > 2e-2:
+                        moving = True
+                        break
+                if not moving:
+                    return
+
+    def _acceptable(self, body: int, spec: sc.ObjectSpec, layout: str) -> bool:
+        cid = self.client
+        pos, orn = p.getBasePositionAndOrientation(body, physicsClientId=cid)
+        R = np.asarray(p.getMatrixFromQuaternion(orn)).reshape(3, 3)
+        if spec.upright and R[2, 2] < np.cos(np.deg2rad(15)):
+            return False
+        region, floor = self._drop_region(layout)
+        if not (
+            np.all(np.asarray(pos[:2]) > region[0] - 0.05)
+            and np.all(np.asarray(pos[:2]) < region[1] + 0.05)
+        ):
+            return False
+        if pos[2] < floor - 0.01:
+            return False
+        for other in self._bodies:
+            for c in p.getContactPoints(body, other, physicsClientId=cid):
+                if c[8] < -0.003:
+                    return False
+        return True
+
+    # --- state -----------------------------------------------------------------------------------
+
+    def _object_states(self) -> tuple[ObjectState, ...]:
+        out = []
+        for i, (spec, body) in enumerate(zip(self._spec.objects, self._bodies, strict=True)):
+            pos, orn = p.getBasePositionAndOrientation(body, physicsClientId=self.client)
+            T = sc.pose_matrix(pos, orn)
+            out.append(
+                ObjectState(
+                    id=i,
+                    name=spec.name or f"{spec.kind}_{i}",
+                    kind=spec.kind,
+                    pose=T,
+                    position=np.array(pos),
+                    quaternion=np.array(orn),
+                    superquadric=spec.superquadric(T),
+                )
+            )
+        return tuple(out)
+
+    def get_state(self) -> SimState:
+        r = self._require_robot()
+        return SimState(
+            time=self._time,
+            scene_kind=self._spec.kind,
+            objects=self._object_states(),
+            joint_positions=r.q(),
+            gripper_width=r.gripper_width(),
+            tcp_pose=self.kin.fk(r.q()),
+            held_object=self._held,
+        )
+
+    def _require_robot(self) -> PandaRobot:
+        if self.robot is None or self.client < 0:
+            raise PreconditionError("simulator is closed")
+        return self.robot
+
+    # --- cameras ----------------------------------------------------------------------------------
+
+    def camera_pose(self, camera: str) -> np.ndarray:
+        """Optical-frame pose of a named camera: ``wrist`` (on the hand), ``shelf`` (fixed in
+        front of the shelf) or ``overview`` (fixed, above the workspace)."""
+        if camera == "wrist":
+            return self._require_robot().link_pose(HAND_LINK) @ WRIST_CAMERA_OFFSET
+        if camera == "shelf":
+            s = self.config.shelf
+            target = (s.front_x + 0.5 * s.depth, 0.0, s.bottom_z + 0.08)
+            return look_at((s.front_x - 0.50, -0.30, s.bottom_z + 0.30), target)
+        if camera == "overview":
+            cx, cy = WORKSPACE_CENTER
+            return look_at((cx - 0.35, cy, 0.75), (cx, cy, 0.0))
+        raise ValidationError(
+            f"camera must be 'wrist', 'shelf', 'overview' or 'default', got {camera!r}"
+        )
+
+    def observe(
+        self,
+        camera: str = "default",
+        *,
+        intrinsics: Intrinsics | None = None,
+        camera_pose: np.ndarray | None = None,
+        noise: bool = True,
+    ) -> Observation:
+        """Render one frame: depth, RGB, instance segmentation, noisy world point cloud, truth.
+
+        ``camera='default'`` is the wrist camera on the tabletop and the shelf camera on the
+        shelf. ``camera_pose`` (optical frame to world) overrides the named pose.
+        """
+        r = self._require_robot()
+        if camera == "default":
+            camera = "shelf" if self._spec.kind == "shelf" else "wrist"
+        k = intrinsics or Intrinsics()
+        T_wc = (
+            as_pose(camera_pose, "camera_pose")
+            if camera_pose is not None
+            else self.camera_pose(camera)
+        )
+        _, _, rgba, depth_buf, seg = p.getCameraImage(
+            k.width,
+            k.height,
+            viewMatrix=view_matrix(T_wc),
+            projectionMatrix=projection_matrix(k),
+            renderer=p.ER_TINY_RENDERER,
+            physicsClientId=self.client,
+        )
+        rgb = np.asarray(rgba, np.uint8).reshape(k.height, k.width, 4)[..., :3].copy()
+        depth = linearize_depth(np.asarray(depth_buf).reshape(k.height, k.width), k)
+        seg_raw = np.asarray(seg, np.int64).reshape(k.height, k.width)
+        labels = np.full(seg_raw.shape, LABEL_BACKGROUND, np.int32)
+        for i, b in enumerate(self._bodies):
+            labels[seg_raw == b] = i
+        for b in self._static:
+            labels[seg_raw == b] = LABEL_STATIC
+        labels[seg_raw == r.body] = LABEL_ROBOT
+        depth[labels == LABEL_BACKGROUND] = np.inf
+        pts, idx = backproject(depth, k, T_wc)
+        if noise and self.config.point_noise_std > 0:
+            pts = add_point_noise(pts, self.config.point_noise_std, self._noise_rng)
+        depth_out = np.where(np.isfinite(depth), depth, 0.0).astype(np.float32)
+        return Observation(
+            camera=camera,
+            intrinsics=k,
+            camera_pose=T_wc,
+            depth=depth_out,
+            rgb=rgb,
+            segmentation=labels,
+            points=pts,
+            point_labels=labels.reshape(-1)[idx],
+            point_pixels=idx,
+            objects=self._object_states(),
+            time=self._time,
+        )
+
+    # --- checks ------------------------------------------------------------------------------------
+
+    def _solve(self, T: np.ndarray, q_seed: np.ndarray, what: str) -> np.ndarray:
+        res = self.kin.ik(T, q_seed, rng=self._ik_rng)
+        if not res.success:
+            raise PreconditionError(
+                f"{what} at {np.round(T[:3, 3], 3).tolist()} is unreachable "
+                f"(IK error {res.position_error * 1000:.1f} mm, {res.rotation_error:.3f} rad "
+                "inside the joint limits)"
+            )
+        return res.q
+
+    def _collisions(
+        self, q: np.ndarray, width: float, *, objects: bool = False, margin: float | None = None
+    ) -> list[str]:
+        """Names of static bodies (and objects, when asked) the robot at ``(q, width)`` touches."""
+        r = self._require_robot()
+        margin = self.config.collision_margin if margin is None else margin
+        snap = r.snapshot()
+        hits: list[str] = []
+        try:
+            r.pose_config(q, width)
+            for body, name in self._static.items():
+                for c in p.getClosestPoints(r.body, body, margin, physicsClientId=self.client):
+                    if c[3] <= 0 and name == "pedestal":  # the base stands on it
+                        continue
+                    if c[8] < margin:
+                        hits.append(name)
+                        break
+            if objects:
+                for i, body in enumerate(self._bodies):
+                    if i == self._held:
+                        continue
+                    for c in p.getClosestPoints(r.body, body, 0.0, physicsClientId=self.client):
+                        if c[8] < -0.001:
+                            hits.append(f"object {i}")
+                            break
+        finally:
+            r.restore(snap)
+        return hits
+
+    def _check_free(self, q: np.ndarray, width: float, what: str, objects: bool = False) -> None:
+        hits = self._collisions(q, width, objects=objects)
+        if hits:
+            names = ", ".join(sorted(set(hits)))
+            kind = "shelf" if any(h.startswith("shelf") for h in hits) else names
+            extra = ""
+            if any(h.startswith("object") for h in hits) and what.startswith("grasp"):
+                extra = f" (object wider than the {width:.3f} m opening, or in the fingers' way)"
+            raise PreconditionError(f"{what} collides with {kind} ({names}){extra}")
+
+    def _check_path(
+        self, q0: np.ndarray, q1: np.ndarray, width: float, what: str, n: int = 8
+    ) -> None:
+        for s in np.linspace(0, 1, n + 2)[1:-1]:
+            self._check_free(q0 + s * (q1 - q0), width, f"joint path to {what}")
+
+    def _check_idle(self) -> None:
+        if self._held is not None:
+            raise PreconditionError(f"gripper is holding object {self._held}; call release() first")
+
+    def _in_workspace(self, x: np.ndarray, name: str) -> None:
+        if self._spec.kind == "shelf":
+            b = self.config.shelf.inner_bounds()
+            region = "shelf interior"
+        else:
+            b = workspace_bounds()
+            region = "workspace"
+        tol = 1e-6
+        if np.any(x < b[0] - tol) or np.any(x > b[1] + tol):
+            raise ValidationError(
+                f"{name} {np.round(x, 4).tolist()} is out of workspace: the {region} is "
+                f"{np.round(b[0], 3).tolist()} .. {np.round(b[1], 3).tolist()}"
+            )
+
+    def _result(self, ok: bool, msg: str, before: SimState, t0: float) -> ActionResult:
+        after = self.get_state()
+        return ActionResult(ok, msg, before, after, self._held, self._time - t0)
+
+    # --- actions ---------------------------------------------------------------------------------
+
+    def push(self, p_start, v) -> ActionResult:
+        """Push (Ch. 4.5): tool tip to ``p`` with the Fig. 4.6 orientation, then to ``p + v``
+        through ``push_via_points`` via points at ``push_speed``; lift and return home."""
+        r = self._require_robot()
+        cfg = self.config
+        p0 = as_point(p_start, "p")
+        v = as_point(v, "v")
+        if np.linalg.norm(v) < 1e-4 or np.linalg.norm(v) > 0.5:
+            raise ValidationError(f"|v| must be in [0.0001, 0.5] m, got {np.linalg.norm(v):.4f}")
+        self._in_workspace(p0, "push start p")
+        self._in_workspace(p0 + v, "push end p + v")
+        self._check_idle()
+        shelf = self._spec.kind == "shelf"
+        q_home = self.home
+        plan = None
+        errors = []
+        for yaw in (0.0, np.pi):
+            R = push_tool_rotation(v, yaw, down=not shelf)
+            T_start = tool_pose(R, p0)
+            if shelf:
+                T_pre = offset_along_z(T_start, -0.12)
+                T_pre[0, 3] = min(T_pre[0, 3], cfg.shelf.front_x - 0.02)
+            else:
+                T_pre = lifted(T_start, max(0.25 - p0[2], 0.05))
+            try:
+                q_pre = self._solve(T_pre, q_home, "pre-push pose")
+                q_start = self._solve(T_start, q_pre, "push start")
+                qs, q_prev = [], q_start
+                for k in range(1, cfg.push_via_points + 1):
+                    q_prev = self._solve(
+                        tool_pose(R, p0 + v * k / cfg.push_via_points), q_prev, "push via point"
+                    )
+                    qs.append(q_prev)
+                T_end = tool_pose(R, p0 + v)
+                T_post = (
+                    offset_along_z(T_end, -0.12)
+                    if shelf
+                    else lifted(T_end, max(0.25 - T_end[2, 3], 0.05))
+                )
+                q_post = self._solve(T_post, qs[-1], "post-push pose")
+            except PreconditionError as exc:
+                errors.append(str(exc))
+                continue
+            if np.max(np.abs(np.diff(np.stack([q_start, *qs]), axis=0))) > 0.6:
+                errors.append("push path needs a joint flip (unreachable as a straight line)")
+                continue
+            plan = (q_pre, q_start, qs, q_post)
+            break
+        if plan is None:
+            raise PreconditionError(f"push unreachable: {errors[0]}")
+        q_pre, q_start, qs, q_post = plan
+        self._check_free(q_pre, 0.0, "pre-push configuration")
+        self._check_free(q_start, 0.0, "push start configuration")
+        self._check_free(qs[-1], 0.0, "push end configuration")
+        self._check_path(r.q(), q_pre, 0.0, "pre-push pose")
+        self._check_path(q_post, q_home, 0.0, "home")
+
+        before = self.get_state()
+        t0 = self._time
+        r.actuate_gripper(0.0, max_time=0.3)
+        r.move_joints(q_pre)
+        r.move_joints(q_start, speed=0.2)
+        seg = float(np.linalg.norm(v)) / cfg.push_via_points / cfg.push_speed
+        r.follow(qs, [seg] * len(qs))
+        r.move_joints(q_post, speed=0.2)
+        r.move_joints(q_home)
+        return self._result(True, "pushed", before, t0)
+
+    def _plan_grasp(self, pose: np.ndarray, width: float, q_seed: np.ndarray):
+        T_pre = offset_along_z(pose, -self.config.approach_distance)
+        q_pre = self._solve(T_pre, q_seed, "pre-grasp pose")
+        q_grasp = self._solve(pose, q_pre, "grasp pose")
+        q_lift = self._solve(lifted(pose, self.config.approach_distance), q_grasp, "lift pose")
+        self._check_free(q_pre, width, "pre-grasp configuration", objects=True)
+        self._check_free(q_grasp, width, "grasp configuration", objects=True)
+        self._check_free(q_lift, 0.0, "lift configuration")
+        return q_pre, q_grasp, q_lift
+
+    def _execute_grasp(self, q_pre, q_grasp, q_lift, width: float) -> tuple[bool, str, int | None]:
+        r = self._require_robot()
+        cfg = self.config
+        starts = {i: s.position[2] for i, s in enumerate(self._object_states())}
+        r.actuate_gripper(width, max_time=0.4)
+        r.move_joints(q_pre)
+        r.move_joints(q_grasp, speed=0.15)
+        r.actuate_gripper(0.0, max_time=0.8)
+        r.follow([q_lift], [cfg.approach_distance / 0.1])
+        for _ in range(int(cfg.hold_time / cfg.time_step)):
+            self._step()
+        held = self._object_in_hand()
+        if held is None:
+            return False, "nothing between the fingers after lifting and holding", None
+        z = p.getBasePositionAndOrientation(self._bodies[held], physicsClientId=self.client)[0][2]
+        if z < starts[held] + 0.5 * cfg.approach_distance:
+            return False, f"object {held} was not lifted", None
+        return True, f"object {held} lifted and held for {cfg.hold_time:.1f} s", held
+
+    def _object_in_hand(self) -> int | None:
+        r = self._require_robot()
+        if r.gripper_width() < 0.002:
+            return None
+        for i, body in enumerate(self._bodies):
+            touching = [
+                len(p.getContactPoints(r.body, body, f, -1, physicsClientId=self.client)) > 0
+                for f in FINGER_INDICES
+            ]
+            if all(touching):
+                return i
+        return None
+
+    def grasp(self, pose, width: float) -> ActionResult:
+        """Grasp (3.5.3): open to ``width``, pre-grasp 10 cm back along the tool z axis, approach,
+        close, lift 10 cm, hold ``hold_time``; success = an object is lifted and still between
+        the fingers. On success the object stays in the hand (``release()`` drops it)."""
+        r = self._require_robot()
+        pose = as_pose(pose, "pose")
+        width = as_width(width)
+        self._check_idle()
+        q_pre, q_grasp, q_lift = self._plan_grasp(pose, width, self.home)
+        self._check_path(r.q(), q_pre, width, "pre-grasp pose")
+        before = self.get_state()
+        t0 = self._time
+        ok, msg, held = self._execute_grasp(q_pre, q_grasp, q_lift, width)
+        if ok:
+            self._held = held
+        else:
+            r.actuate_gripper(GRIPPER_MAX_WIDTH, max_time=0.3)
+            r.move_joints(self.home)
+        return self._result(ok, msg, before, t0)
+
+    def release(self) -> ActionResult:
+        """Open the gripper where it is (the held object drops) and return home."""
+        r = self._require_robot()
+        before = self.get_state()
+        t0 = self._time
+        r.actuate_gripper(GRIPPER_MAX_WIDTH, max_time=0.4)
+        self._held = None
+        q_up = self._solve(lifted(self.kin.fk(r.q()), 0.05), r.q(), "retreat pose")
+        r.move_joints(q_up, speed=0.2)
+        r.move_joints(self.home)
+        return self._result(True, "released", before, t0)
+
+    def pick_and_place(self, grasp_pose, width: float, place_pose) -> ActionResult:
+        """Grasp at ``grasp_pose`` and release with the tool at ``place_pose`` (both tool poses,
+        world): the object moves by ``place_pose @ inv(grasp_pose)``. Success = the object was
+        grasped and rests within 3 cm of that target after release."""
+        r = self._require_robot()
+        grasp_pose = as_pose(grasp_pose, "grasp_pose")
+        place_pose = as_pose(place_pose, "place_pose")
+        width = as_width(width)
+        self._check_idle()
+        self._in_workspace(
+            place_pose[:3, 3] * [1, 1, 0] + [0, 0, self._floor_z() + 0.01], "place position"
+        )
+        q_pre, q_grasp, q_lift = self._plan_grasp(grasp_pose, width, self.home)
+        T_pre_place = lifted(place_pose, self.config.approach_distance)
+        q_pre_place = self._solve(T_pre_place, q_lift, "pre-place pose")
+        q_place = self._solve(place_pose, q_pre_place, "place pose")
+        q_retreat = self._solve(
+            offset_along_z(place_pose, -self.config.approach_distance), q_place, "retreat pose"
+        )
+        self._check_free(q_place, 0.0, "place configuration")
+        self._check_free(q_pre_place, 0.0, "pre-place configuration")
+        self._check_path(r.q(), q_pre, width, "pre-grasp pose")
+        self._check_path(q_lift, q_pre_place, 0.0, "pre-place pose")
+        before = self.get_state()
+        t0 = self._time
+        ok, msg, held = self._execute_grasp(q_pre, q_grasp, q_lift, width)
+        if not ok:
+            r.actuate_gripper(GRIPPER_MAX_WIDTH, max_time=0.3)
+            r.move_joints(self.home)
+            return self._result(False, f"grasp failed: {msg}", before, t0)
+        body = self._bodies[held]
+        T_obj = sc.pose_matrix(*p.getBasePositionAndOrientation(body, physicsClientId=self.client))
+        T_tool = self.kin.fk(r.q())
+        target = place_pose @ np.linalg.inv(T_tool) @ T_obj
+        r.move_joints(q_pre_place)
+        r.move_joints(q_place, speed=0.15)
+        r.actuate_gripper(width, max_time=0.5)
+        r.move_joints(q_retreat, speed=0.2)
+        r.move_joints(self.home)
+        self._settle(self._bodies)
+        pos = np.asarray(p.getBasePositionAndOrientation(body, physicsClientId=self.client)[0])
+        err = float(np.linalg.norm(pos[:2] - target[:2, 3]))
+        ok = err < 0.03
+        return self._result(
+            ok, f"object {held} placed {err * 100:.1f} cm from the target", before, t0
+        )
+
+    def _floor_z(self) -> float:
+        return self.config.shelf.bottom_z if self._spec.kind == "shelf" else 0.0

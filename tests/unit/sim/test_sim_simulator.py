@@ -1,0 +1,268 @@
+"""Simulator behaviour: determinism, camera geometry, push, grasp, refusals (issue 4, item 6).
+
+One ``Simulator`` (one PyBullet DIRECT client) is shared by the module; each test resets it.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+from sqmanip.errors import PreconditionError, ValidationError
+from sqmanip.geometry.superquadric import radial_distance
+from sqmanip.sim import (
+    LABEL_ROBOT,
+    LABEL_STATIC,
+    Intrinsics,
+    ObjectSpec,
+    SceneSpec,
+    Simulator,
+    workspace_bounds,
+)
+
+
+@pytest.fixture(scope="module")
+def sim():
+    s = Simulator()
+    yield s
+    s.close()
+
+
+def top_grasp(x, y, z, yaw=0.0) -> np.ndarray:
+    """Tool pose pointing down (approach -z) with the closing axis at ``yaw + pi/2``."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    T = np.eye(4)
+    T[:3, :3] = np.array([[c, s, 0.0], [s, -c, 0.0], [0.0, 0.0, -1.0]])
+    T[:3, 3] = (x, y, z)
+    return T
+
+
+def box(size, x, y, yaw=0.0, **kw) -> ObjectSpec:
+    q = (0.0, 0.0, np.sin(yaw / 2), np.cos(yaw / 2))
+    return ObjectSpec("box", position=(x, y, size[2] / 2 + 1e-4), orientation=q, size=size, **kw)
+
+
+# --- determinism and specs ------------------------------------------------------------------------
+
+
+def test_same_seed_gives_the_same_scene_in_two_simulators(sim):
+    a = sim.reset(seed=7, n_objects=4)
+    with Simulator() as other:
+        b = other.reset(seed=7, n_objects=4)
+    assert len(a.objects) == 4
+    for oa, ob in zip(a.objects, b.objects, strict=True):
+        np.testing.assert_array_equal(oa.pose, ob.pose)
+    c = sim.reset(seed=8, n_objects=4)
+    assert not np.allclose(a.objects[0].position, c.objects[0].position)
+
+
+def test_random_scene_objects_are_upright_inside_the_workspace_and_apart(sim):
+    state = sim.reset(seed=3, n_objects=5)
+    lo, hi = workspace_bounds()
+    for o in state.objects:
+        assert o.pose[2, 2] > np.cos(np.deg2rad(15))  # upright
+        assert np.all(o.position[:2] > lo[:2] - 0.05) and np.all(o.position[:2] < hi[:2] + 0.05)
+        assert o.superquadric is not None
+
+
+def test_scene_spec_json_round_trip_replays_the_settled_poses(sim):
+    sim.reset(seed=11, n_objects=3)
+    spec = sim.scene_spec
+    text = json.dumps(spec.to_dict())
+    again = SceneSpec.from_dict(json.loads(text))
+    assert again == spec
+    state = sim.reset(again)
+    for o, s in zip(state.objects, spec.objects, strict=True):
+        np.testing.assert_allclose(o.position, s.position, atol=1e-9)
+
+
+def test_same_scene_and_push_give_identical_results(sim):
+    spec = SceneSpec(
+        objects=(box((0.05, 0.05, 0.05), 0.42, 0.0), box((0.04, 0.06, 0.08), 0.5, 0.05))
+    )
+    finals = []
+    for _ in range(2):
+        sim.reset(spec)
+        res = sim.push([0.35, 0.0, 0.02], [0.12, 0.0, 0.0])
+        finals.append(np.stack([o.pose for o in res.after.objects]))
+    np.testing.assert_array_equal(finals[0], finals[1])
+
+
+# --- camera -----------------------------------------------------------------------------------------
+
+
+def _box_distance(local: np.ndarray, half: np.ndarray) -> np.ndarray:
+    q = np.abs(local) - half
+    outside = np.linalg.norm(np.maximum(q, 0.0), axis=1)
+    inside = np.minimum(q.max(axis=1), 0.0)
+    return np.abs(outside + inside)
+
+
+def _cylinder_distance(local: np.ndarray, r: float, h: float) -> np.ndarray:
+    d = np.stack([np.linalg.norm(local[:, :2], axis=1) - r, np.abs(local[:, 2]) - h], axis=1)
+    outside = np.linalg.norm(np.maximum(d, 0.0), axis=1)
+    inside = np.minimum(d.max(axis=1), 0.0)
+    return np.abs(outside + inside)
+
+
+SURFACE_SCENE = SceneSpec(
+    objects=(
+        box((0.06, 0.04, 0.08), 0.40, -0.10, yaw=0.4),
+        ObjectSpec("cylinder", position=(0.50, 0.10, 0.05), radius=0.03, height=0.10),
+        ObjectSpec(
+            "superquadric",
+            position=(0.52, -0.08, 0.04),
+            params=(0.035, 0.03, 0.04, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0),
+        ),
+        ObjectSpec(
+            "superquadric",
+            position=(0.36, 0.12, 0.05),
+            params=(0.03, 0.03, 0.05, 0.5, 0.5, 0.3, 0.0, 0.0, 0.0),
+        ),
+    ),
+    seed=5,
+)
+
+
+def _surface_distances(obs) -> dict[int, np.ndarray]:
+    out = {}
+    for o in obs.objects:
+        pts = obs.points[obs.point_labels == o.id]
+        local = (pts - o.pose[:3, 3]) @ o.pose[:3, :3]
+        spec = SURFACE_SCENE.objects[o.id]
+        if spec.kind == "box":
+            d = _box_distance(local, np.asarray(spec.size) / 2)
+        elif spec.kind == "cylinder":
+            d = _cylinder_distance(local, spec.radius, spec.height / 2)
+        else:
+            params = torch.as_tensor(o.superquadric.params(), dtype=torch.float64)
+            d = radial_distance(torch.as_tensor(local), params).numpy()
+        out[o.id] = d
+    return out
+
+
+def test_observed_points_lie_within_5mm_of_the_spawned_surfaces(sim):
+    sim.reset(SURFACE_SCENE)
+    clean = sim.observe(noise=False)
+    noisy = sim.observe()
+    for i, d in _surface_distances(clean).items():
+        assert d.size > 300, f"object {i} barely visible ({d.size} points)"
+        assert np.max(d) < 0.005, f"object {i}: max distance {np.max(d) * 1000:.2f} mm"
+        assert np.median(d) < 0.001
+    for i, d in _surface_distances(noisy).items():
+        assert np.mean(d < 0.005) > 0.99, f"object {i}"
+    # The noise is the A.1 model: displacement norms ~ |N(0, 1 mm)|.
+    disp = np.linalg.norm(noisy.points - clean.points, axis=1)
+    assert 0.0006 < np.mean(disp) < 0.001  # E|m| = 0.8 mm
+
+
+def test_observation_labels_depth_and_truth_are_consistent(sim):
+    sim.reset(SURFACE_SCENE)
+    k = Intrinsics.scaled(320, 240)
+    obs = sim.observe(intrinsics=k, noise=False)
+    assert obs.depth.shape == (240, 320) and obs.rgb.shape == (240, 320, 3)
+    assert obs.rgb.dtype == np.uint8 and obs.segmentation.dtype == np.int32
+    labels = set(np.unique(obs.segmentation).tolist())
+    assert {0, 1, 2, 3, LABEL_STATIC}.issubset(labels)
+    # The object's centre projects onto a pixel labelled with that object (no image flips).
+    T_cw = np.linalg.inv(obs.camera_pose)
+    for o in obs.objects:
+        top = o.pose[:3, 3] + np.array([0, 0, 0.01])
+        xc = T_cw[:3, :3] @ top + T_cw[:3, 3]
+        u = int(round(k.fx * xc[0] / xc[2] + k.cx))
+        v = int(round(k.fy * xc[1] / xc[2] + k.cy))
+        assert obs.segmentation[v, u] == o.id
+    # Table points lie on z = 0.
+    table = obs.points[obs.point_labels == LABEL_STATIC]
+    assert np.median(np.abs(table[:, 2])) < 1e-3
+    assert obs.points.shape[0] == obs.point_labels.shape[0] == np.count_nonzero(obs.depth)
+
+
+def test_shelf_scene_is_seen_by_the_shelf_camera(sim):
+    state = sim.reset(seed=2, n_objects=3, kind="shelf")
+    lo, hi = sim.config.shelf.inner_bounds()
+    for o in state.objects:
+        assert np.all(o.position[:2] > lo[:2]) and np.all(o.position[:2] < hi[:2])
+        assert o.position[2] > lo[2]
+    obs = sim.observe()
+    assert obs.camera == "shelf"
+    seen = set(np.unique(obs.segmentation).tolist())
+    assert LABEL_ROBOT not in seen  # the tucked arm hides nothing
+    assert len(seen & {0, 1, 2}) >= 2
+
+
+# --- actions ----------------------------------------------------------------------------------------
+
+
+def test_push_along_x_moves_the_box_along_x_and_leaves_a_far_object(sim):
+    spec = SceneSpec(
+        objects=(box((0.05, 0.05, 0.05), 0.42, -0.10), box((0.05, 0.05, 0.08), 0.45, 0.18))
+    )
+    sim.reset(spec)
+    res = sim.push([0.36, -0.10, 0.02], [0.12, 0.0, 0.0])
+    assert res.success
+    d0 = res.after.objects[0].position - res.before.objects[0].position
+    d1 = res.after.objects[1].position - res.before.objects[1].position
+    assert d0[0] > 0.04 and abs(d0[1]) < 0.02
+    assert np.linalg.norm(d1) < 0.002
+
+
+def test_top_grasp_on_a_5cm_box_lifts_and_holds_it(sim):
+    sim.reset(SceneSpec(objects=(box((0.05, 0.05, 0.05), 0.45, 0.0),)))
+    res = sim.grasp(top_grasp(0.45, 0.0, 0.03), 0.08)
+    assert res.success, res.message
+    assert res.held_object == 0
+    assert res.after.objects[0].position[2] > res.before.objects[0].position[2] + 0.05
+    with pytest.raises(PreconditionError, match="holding"):
+        sim.push([0.3, 0.0, 0.02], [0.1, 0.0, 0.0])
+    rel = sim.release()
+    assert rel.after.held_object is None
+    assert rel.after.objects[0].position[2] < 0.05
+
+
+def test_grasp_across_a_12cm_side_is_refused(sim):
+    sim.reset(SceneSpec(objects=(box((0.12, 0.12, 0.05), 0.45, 0.0),)))
+    before = sim.get_state()
+    with pytest.raises(PreconditionError, match="collides with object 0"):
+        sim.grasp(top_grasp(0.45, 0.0, 0.03), 0.08)
+    with pytest.raises(ValidationError, match="width"):
+        sim.grasp(top_grasp(0.45, 0.0, 0.03), 0.12)
+    np.testing.assert_array_equal(sim.get_state().joint_positions, before.joint_positions)
+
+
+def test_pick_and_place_moves_the_box(sim):
+    sim.reset(SceneSpec(objects=(box((0.05, 0.05, 0.05), 0.40, -0.10),)))
+    res = sim.pick_and_place(top_grasp(0.40, -0.10, 0.03), 0.08, top_grasp(0.50, 0.10, 0.035))
+    assert res.success, res.message
+    assert np.linalg.norm(res.after.objects[0].position[:2] - [0.50, 0.10]) < 0.03
+    assert res.after.held_object is None
+
+
+def test_push_outside_the_workspace_is_a_validation_error(sim):
+    sim.reset(SceneSpec())
+    with pytest.raises(ValidationError, match="out of workspace"):
+        sim.push([0.9, 0.0, 0.02], [0.1, 0.0, 0.0])
+    with pytest.raises(ValidationError, match="out of workspace"):
+        sim.push([0.6, 0.0, 0.02], [0.2, 0.0, 0.0])
+    with pytest.raises(ValidationError, match="finite"):
+        sim.push([np.nan, 0.0, 0.02], [0.1, 0.0, 0.0])
+
+
+def test_grasp_at_unreachable_or_colliding_poses_is_refused_with_the_reason(sim):
+    sim.reset(SceneSpec())
+    with pytest.raises(PreconditionError, match="unreachable"):
+        sim.grasp(top_grasp(1.2, 0.0, 0.05), 0.05)
+    with pytest.raises(PreconditionError, match="collides with table"):
+        sim.grasp(top_grasp(0.45, 0.0, -0.03), 0.05)
+    with pytest.raises(ValidationError, match="orthonormal"):
+        sim.grasp(np.diag([2.0, 1.0, 1.0, 1.0]), 0.05)
+
+
+def test_grasp_through_the_shelf_top_is_refused(sim):
+    sim.reset(SceneSpec(kind="shelf"))
+    s = sim.config.shelf
+    top_z = s.bottom_z + s.inner_height + s.thickness / 2
+    with pytest.raises(PreconditionError, match="collides with shelf"):
+        sim.grasp(top_grasp(s.front_x + 0.1, 0.0, top_z), 0.05)
