@@ -1,0 +1,345 @@
+"""Push and pick-and-place actions, their scene prediction and the action sampler (5.4.4).
+
+Push (Fig. 5.4): an object ``i`` and a direction, left (+y) or right (-y) across the shelf. The
+closed gripper points into the shelf (+x) pitched 30 deg down about its own y axis (the closing
+axis, here along the push), its pushing finger face 1 cm from the object's near side, the TCP at
+the object's centre height; the pose is rejected when the gripper (with links 6-7) collides with
+another object or a shelf board (the C.2 point test). ``d in {5, 10, 15} cm``. The next scene comes
+from a pushing dynamics model ``predict(poses, params, actions (K, 6) = (p, v), kinds)`` such as
+SQPD-Net (:class:`SQPDNetDynamics`), then objects are kept inside the shelf walls.
+
+Pick-and-place: a rule-based C.3 grasp of object ``i`` whose 30 cm approach afterimage is
+collision-free, and a place translation on the floor (no stacking: the object keeps its height
+and orientation) where the object collides with no other object, no board and no pose the target
+may still occupy (``f = 1``), and where the gripper's afterimage is collision-free. The next
+scene applies ``T_place T_grasp^{-1}`` to the object.
+
+Sampler: ``I_p`` (pushable) and ``I_g`` (graspable) objects; 30 indices are drawn from the
+multiset ``I_g + I_p`` (or one of them for the 5.6.2 ablations) and one action is sampled for each.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Literal, Protocol
+
+import numpy as np
+import torch
+
+from sqmanip.geometry.sampling import sample_surface
+from sqmanip.grasping import PANDA_HAND, GripperSpec, RuleOptions, gripper_points
+from sqmanip.grasping.rule_based import rule_based_candidates
+
+from .config import SearchConfig
+from .shelf import Obstacles, SceneState, ShelfSpec, cluster_points
+
+
+@dataclasses.dataclass(frozen=True)
+class Push:
+    kind: Literal["push"]
+    obj: int
+    direction: int
+    """+1 pushes towards +y (left seen from the robot), -1 towards -y."""
+    distance: float
+    gripper_pose: np.ndarray
+    start: np.ndarray
+    displacement: np.ndarray
+
+    def as_vector(self) -> np.ndarray:
+        """``(p, v)`` of the pushing dynamics model, (6,)."""
+        return np.concatenate([self.start, self.displacement])
+
+
+@dataclasses.dataclass(frozen=True)
+class PickAndPlace:
+    kind: Literal["pick_and_place"]
+    obj: int
+    grasp_pose: np.ndarray
+    place_pose: np.ndarray
+
+    @property
+    def transform(self) -> np.ndarray:
+        return self.place_pose @ np.linalg.inv(self.grasp_pose)
+
+
+Action = Push | PickAndPlace
+
+
+class PushDynamics(Protocol):
+    def predict(self, poses, params, actions, kinds=None) -> torch.Tensor: ...
+
+
+class SQPDNetDynamics:
+    """SQPD-Net (Ch. 4) on the shelf floor: the net was trained on a table at ``z = 0`` and is
+    SE(2)-equivariant but not equivariant to height, so scene and push are lowered by the floor
+    height before the call and raised after."""
+
+    def __init__(self, model, floor_z: float) -> None:
+        self.model, self.floor_z = model, float(floor_z)
+
+    def predict(self, poses, params, actions, kinds=None) -> torch.Tensor:
+        poses = torch.as_tensor(poses).clone()
+        actions = torch.as_tensor(actions).clone()
+        poses[:, 2, 3] -= self.floor_z
+        actions[:, 2] -= self.floor_z
+        with torch.no_grad():
+            out = self.model.predict(poses, params, actions, kinds)
+        out = out.clone()
+        out[..., 2, 3] += self.floor_z
+        return out
+
+
+class KinematicPushDynamics:
+    """A simple push model: the pushed object (the one whose near side the pusher faces) slides
+    rigidly by the push length minus the initial gap; the others stay. For tests and as a
+    fallback when no trained SQPD-Net is available."""
+
+    def __init__(self, gap: float = 0.01) -> None:
+        self.gap = gap
+
+    def predict(self, poses, params, actions, kinds=None) -> torch.Tensor:
+        poses = torch.as_tensor(poses)
+        actions = torch.as_tensor(actions, dtype=poses.dtype)
+        K, N = actions.shape[0], poses.shape[0]
+        out = poses.unsqueeze(0).expand(K, N, 4, 4).clone()
+        if N == 0:
+            return out
+        p, v = actions[:, :3], actions[:, 3:]
+        length = v.norm(dim=-1).clamp_min(1e-9)
+        u = v / length.unsqueeze(-1)
+        rel = poses[:, :3, 3].unsqueeze(0) - p.unsqueeze(1)  # (K, N, 3)
+        along = (rel * u.unsqueeze(1)).sum(-1)
+        across = (rel - along.unsqueeze(-1) * u.unsqueeze(1))[..., :2].norm(dim=-1)
+        score = torch.where(along > 0, across + 0.1 * along, torch.full_like(along, math.inf))
+        i = score.argmin(-1)
+        move = (length - self.gap).clamp_min(0).unsqueeze(-1) * u
+        k = torch.arange(K)
+        ok = torch.isfinite(score[k, i])
+        out[k[ok], i[ok], :3, 3] += move[ok]
+        return out
+
+
+def keep_inside(poses: torch.Tensor, radii: torch.Tensor, shelf: ShelfSpec) -> torch.Tensor:
+    """Clamp object centres ``(..., N, 4, 4)`` so their horizontal bounding circle (``radii (N,)``)
+    stays between the shelf walls: a pushed object stops at a wall."""
+    lo_y = -shelf.inner_width / 2 + radii
+    hi_y = shelf.inner_width / 2 - radii
+    lo_x = shelf.front_x + radii * 0.0
+    hi_x = shelf.front_x + shelf.depth - radii
+    out = poses.clone()
+    out[..., 1, 3] = torch.maximum(torch.minimum(out[..., 1, 3], hi_y), lo_y)
+    out[..., 0, 3] = torch.maximum(torch.minimum(out[..., 0, 3], hi_x), lo_x)
+    return out
+
+
+def horizontal_radius(scene: SceneState) -> torch.Tensor:
+    """``(N,)`` radius of a vertical cylinder about each centre holding the object (box bound)."""
+    corners = torch.tensor(
+        [[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)],
+        dtype=scene.params.dtype,
+    )
+    c = (corners * scene.params[:, None, :3]) @ scene.poses[:, :3, :3].transpose(-1, -2)
+    return c[..., :2].norm(dim=-1).amax(-1)
+
+
+def world_half_extents(scene: SceneState) -> torch.Tensor:
+    """``(N, 3)`` world-axis half extents of each object's box."""
+    return (scene.poses[:, :3, :3].abs() @ scene.params[:, :3].unsqueeze(-1)).squeeze(-1)
+
+
+class ActionSampler:
+    """Valid push and pick-and-place actions for a scene (5.4.4)."""
+
+    def __init__(
+        self,
+        shelf: ShelfSpec,
+        config: SearchConfig,
+        gripper: GripperSpec = PANDA_HAND,
+        dtype: torch.dtype = torch.float32,
+    ) -> None:
+        self.shelf, self.config, self.gripper, self.dtype = shelf, config, gripper, dtype
+        self.boards = Obstacles.from_parts(shelf.boxes(), dtype)
+        closed = gripper_points(gripper, 512, include_wrist=True, opening=0.0)
+        self.closed = cluster_points(closed, 16, dtype)
+        after = gripper_points(
+            gripper,
+            config.n_gripper_points,
+            include_wrist=True,
+            approach_distance=config.approach_distance,
+        )
+        self.after = cluster_points(after, 64, dtype)
+        self.rule = RuleOptions(
+            top_down=False,
+            max_width=config.grasp_max_width,
+            tilt=math.radians(config.grasp_tilt_deg),
+            facing=(1.0, 0.0, 0.0),
+            facing_angle=math.radians(config.facing_angle_deg),
+        )
+        b = shelf.inner_bounds()
+        xs = np.arange(b[0, 0] + config.place_resolution / 2, b[1, 0], config.place_resolution)
+        ys = np.arange(b[0, 1] + config.place_resolution / 2, b[1, 1], config.place_resolution)
+        gx, gy = np.meshgrid(xs, ys, indexing="ij")
+        self.spots = torch.as_tensor(np.stack([gx.ravel(), gy.ravel()], -1), dtype=dtype)
+
+    # --- helpers ---------------------------------------------------------------------------
+
+    def _others(self, scene: SceneState, i: int) -> Obstacles:
+        s = scene.without(i)
+        return Obstacles.from_tensors(
+            torch.cat([self.boards.params, s.params]),
+            torch.cat([self.boards.poses, s.poses]),
+            torch.cat([self.boards.kinds, s.kinds]),
+        )
+
+    def _free(self, obstacles: Obstacles, pts, poses: torch.Tensor) -> torch.Tensor:
+        return ~obstacles.hits(*pts, poses.to(self.dtype)).any(-1)
+
+    # --- push ------------------------------------------------------------------------------
+
+    def push_poses(self, scene: SceneState, i: int) -> list[tuple[int, np.ndarray, np.ndarray]]:
+        """Collision-free ``(direction, gripper pose, start point)`` for pushing object ``i``."""
+        cfg, g = self.config, self.gripper
+        c = scene.poses[i, :3, 3].double().numpy()
+        half = world_half_extents(scene)[i].double().numpy()
+        tilt = math.radians(cfg.push_tilt_deg)
+        out, poses = [], []
+        for direction in (1, -1):
+            u = np.array([0.0, float(direction), 0.0])
+            z = np.array([math.cos(tilt), 0.0, -math.sin(tilt)])
+            y = u
+            x = np.cross(y, z)
+            T = np.eye(4)
+            T[:3, :3] = np.stack([x, y, z], -1)
+            tcp = c - u * (half[1] + cfg.push_gap + g.finger_thickness)
+            tcp[2] = max(c[2], self.shelf.bottom_z + 0.03)
+            T[:3, 3] = tcp
+            out.append((direction, T, tcp))
+            poses.append(T)
+        free = self._free(self._others(scene, i), self.closed, torch.as_tensor(np.stack(poses)))
+        return [o for o, ok in zip(out, free.tolist(), strict=True) if ok]
+
+    # --- pick and place --------------------------------------------------------------------
+
+    def grasps(self, scene: SceneState, i: int) -> torch.Tensor:
+        """Collision-free C.3 grasps ``(G, 4, 4)`` of object ``i`` (afterimage test)."""
+        obj = scene.objects()[i]
+        cand = rule_based_candidates([obj], options=self.rule, dtype=self.dtype)
+        if len(cand) == 0:
+            return torch.zeros(0, 4, 4, dtype=self.dtype)
+        free = self._free(self._others(scene, i), self.after, cand.poses)
+        return cand.poses[free]
+
+    def place_spots(
+        self, scene: SceneState, i: int, grasp: torch.Tensor, keep_out: torch.Tensor | None
+    ) -> torch.Tensor:
+        """Free translations ``(S, 2)`` for object ``i`` held by ``grasp`` (see module doc).
+
+        ``keep_out (Q, 3)``: ``(x, y, radius)`` discs where the target may stand (``f = 1``)."""
+        cfg = self.config
+        c = scene.poses[i, :2, 3]
+        r = horizontal_radius(scene)
+        d = self.spots - c
+        new_c = self.spots
+        ok = d.norm(dim=-1) > 0.02
+        ok &= new_c[:, 1].abs() <= self.shelf.inner_width / 2 - r[i]
+        ok &= (new_c[:, 0] >= self.shelf.front_x + r[i]) & (
+            new_c[:, 0] <= self.shelf.front_x + self.shelf.depth - r[i]
+        )
+        others = scene.without(i)
+        if len(others):  # horizontal discs: no overlap with other objects (no stacking)
+            ro = horizontal_radius(others)
+            dist = torch.cdist(new_c, others.poses[:, :2, 3])
+            ok &= (dist > (r[i] + ro).unsqueeze(0)).all(-1)
+        if keep_out is not None and keep_out.numel():
+            dist = torch.cdist(new_c, keep_out[:, :2])
+            ok &= (dist > (r[i] + keep_out[:, 2]).unsqueeze(0)).all(-1)
+        idx = ok.nonzero().squeeze(-1)
+        if idx.numel() > cfg.max_place_spots:
+            g = torch.Generator().manual_seed(cfg.seed + i)
+            idx = idx[torch.randperm(idx.numel(), generator=g)[: cfg.max_place_spots]]
+        if idx.numel() == 0:
+            return torch.zeros(0, 2, dtype=self.dtype)
+        shift = d[idx]
+        T = grasp.to(self.dtype).expand(idx.numel(), 4, 4).clone()
+        T[:, :2, 3] += shift
+        free = self._free(self._others(scene, i), self.after, T)
+        return shift[free]
+
+    # --- sampling --------------------------------------------------------------------------
+
+    def candidates(self, scene: SceneState, keep_out: torch.Tensor | None):
+        """``I_p`` and ``I_g`` with their valid pushes / (grasps, spots) per object."""
+        pushes, picks = {}, {}
+        for i in range(len(scene)):
+            if self.config.actions in ("both", "push"):
+                p = self.push_poses(scene, i)
+                if p:
+                    pushes[i] = p
+            if self.config.actions in ("both", "pick_and_place"):
+                gr = self.grasps(scene, i)
+                for k in range(gr.shape[0]):
+                    spots = self.place_spots(scene, i, gr[k], keep_out)
+                    if spots.shape[0]:
+                        picks[i] = (gr[k], spots)
+                        break
+        return pushes, picks
+
+    def sample(
+        self,
+        scene: SceneState,
+        rng: np.random.Generator,
+        n: int,
+        keep_out: torch.Tensor | None = None,
+        candidates=None,
+    ) -> list[Action]:
+        """``n`` actions drawn from the multiset ``I_g + I_p`` (5.4.4); fewer if none is valid."""
+        pushes, picks = candidates if candidates is not None else self.candidates(scene, keep_out)
+        pool = [("push", i) for i in pushes] + [("pick", i) for i in picks]
+        if not pool:
+            return []
+        out: list[Action] = []
+        for j in rng.integers(0, len(pool), size=n):
+            kind, i = pool[int(j)]
+            if kind == "push":
+                direction, T, tcp = pushes[i][int(rng.integers(len(pushes[i])))]
+                d = float(
+                    self.config.push_distances[int(rng.integers(len(self.config.push_distances)))]
+                )
+                v = np.array([0.0, direction * d, 0.0])
+                out.append(Push("push", i, direction, d, T, tcp, v))
+            else:
+                grasp, spots = picks[i]
+                s = spots[int(rng.integers(spots.shape[0]))].double().numpy()
+                place = grasp.double().numpy().copy()
+                place[:2, 3] += s
+                out.append(PickAndPlace("pick_and_place", i, grasp.double().numpy(), place))
+        return out
+
+
+def apply_actions(
+    scene: SceneState, actions: list[Action], dynamics: PushDynamics, shelf: ShelfSpec
+) -> list[SceneState]:
+    """Predicted next scenes ``s_{t+1} = S(s_t, a)`` for each action (5.4.2); pushes batched."""
+    out: list[SceneState | None] = [None] * len(actions)
+    push_idx = [k for k, a in enumerate(actions) if isinstance(a, Push)]
+    if push_idx:
+        vec = torch.as_tensor(np.stack([actions[k].as_vector() for k in push_idx]))
+        nxt = dynamics.predict(scene.poses, scene.params, vec.to(scene.poses.dtype), scene.kinds)
+        nxt = keep_inside(nxt.to(scene.poses.dtype), horizontal_radius(scene), shelf)
+        for j, k in enumerate(push_idx):
+            out[k] = scene.with_poses(nxt[j])
+    for k, a in enumerate(actions):
+        if isinstance(a, PickAndPlace):
+            T = torch.as_tensor(a.transform, dtype=scene.poses.dtype)
+            out[k] = scene.with_pose(a.obj, T @ scene.poses[a.obj])
+    return [s for s in out if s is not None]
+
+
+def object_surface_points(scene: SceneState, n: int = 128) -> torch.Tensor:
+    """``(N, n, 3)`` world surface points of each object (for checks and plots)."""
+    pts, _ = sample_surface(scene.params.double(), n, generator=0)
+    return (
+        pts @ scene.poses.double()[:, :3, :3].transpose(-1, -2)
+        + scene.poses.double()[:, None, :3, 3]
+    ).to(scene.params.dtype)

@@ -1,0 +1,106 @@
+"""Configuration of the shelf search (Ch. 5.3-5.6, C.2, C.3): the methods of Table 5.1 and the
+5.6.2 ablations as options, with the thesis' constants as defaults.
+
+Values the thesis does not state are marked "(ours)": the pose-grid resolution, ``alpha`` and
+``gamma``, the render resolution and samples per ray, the ``f_c`` shrink.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Literal
+
+from sqmanip.errors import ValidationError
+
+Method = Literal["search_for_grasp", "search_and_grasp"]
+"""5.3: search-for-grasp minimises (5.4.6) with J = sum f + alpha f (1 - g); search-and-grasp
+minimises sum f until the target is seen, then 1 - g(x*)."""
+ActionSet = Literal["both", "push", "pick_and_place"]
+"""5.6.2 ablation: sample from I_p + I_g, I_p only or I_g only."""
+
+
+@dataclasses.dataclass(frozen=True)
+class SearchConfig:
+    method: Method = "search_for_grasp"
+    actions: ActionSet = "both"
+    # --- pose set X (5.3, 5.6.3) ---
+    resolution: float = 0.02
+    """Pose grid spacing on the shelf floor (m) (ours; the thesis gives none)."""
+    n_theta: int = 8
+    """Yaws in [0, pi) of the SE(2) grid for a box target (ours)."""
+    # --- existence f (C.2) ---
+    render_scale: float = 1.0 / 7.0
+    """Depth images for f_d are rendered at this fraction of the camera resolution; 1280 x 720 / 7
+    is 183 x 103 = 18,849 pixels, about the thesis' WH = 18,564 (C.2 cost)."""
+    n_ray_samples: int = 16
+    """Samples per ray chord for the soft depth (C.2.7-C.2.8) (ours)."""
+    sharpness: float = 1000.0
+    """p of the occupancy sigmoid (C.2.6)."""
+    tau: float = 100.0
+    """Transmittance scale (C.2.7)."""
+    t_near: float = 0.0
+    t_far: float = 1.5
+    mse_threshold: float = 0.001
+    """f_d(x) = 1 iff the mean squared depth difference over the image is below this (C.2)."""
+    n_target_points: int = 512
+    """n_o target surface points for f_c (C.2.10)."""
+    fc_shrink: float = 0.005
+    """The target is shrunk by this (m) for f_c only: it stands on the floor board (a contact, not
+    a collision) and, with the grid spacing, 'can exist near x' (5.3) (ours)."""
+    # --- graspability g (C.3) ---
+    grasp_tilt_deg: float = 20.0
+    grasp_max_width: float = 0.075
+    approach_distance: float = 0.30
+    n_gripper_points: int = 2048
+    """n_gr points on the afterimage of the gripper and links 6-7 (C.3.11)."""
+    grasp_yaws_deg: tuple[float, ...] = (-40.0, -20.0, 0.0, 20.0, 40.0)
+    """Approach yaws about the vertical for a round target (a cylinder can be grasped from any
+    side, 5.6.3); with ``grasp_heights`` this gives N_gr = 20 (thesis: 10 to 30)."""
+    grasp_heights: int = 4
+    facing_angle_deg: float = 50.0
+    """Side grasps must approach within this of +x (into the shelf, from the robot)."""
+    # --- objective and MPC (5.4.3-5.4.7) ---
+    alpha: float = 1.0
+    """Weight of f (1 - g) in J (5.4.7) (ours; 5.6.4 sweeps it)."""
+    gamma: float = 0.9
+    """Discount of (5.4.6) (ours)."""
+    horizon: int = 3
+    """M (5.4.3)."""
+    n_sequences: int = 30
+    """Sampled action sequences per decision (5.4.4)."""
+    max_steps: int = 10
+    """T (5.4.3): the episode runner stops after this many actions."""
+    # --- actions (5.4.4) ---
+    push_tilt_deg: float = 30.0
+    push_gap: float = 0.01
+    push_distances: tuple[float, ...] = (0.05, 0.10, 0.15)
+    place_resolution: float = 0.03
+    """Spacing of the candidate place spots on the floor (m) (ours)."""
+    max_place_spots: int = 64
+    """At most this many free spots are kept per object (random subset) (ours)."""
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.method not in ("search_for_grasp", "search_and_grasp"):
+            raise ValidationError(
+                f"method must be 'search_for_grasp' or 'search_and_grasp', got {self.method!r}"
+            )
+        if self.actions not in ("both", "push", "pick_and_place"):
+            raise ValidationError(
+                f"actions must be 'both', 'push' or 'pick_and_place', got {self.actions!r}"
+            )
+        for name in ("horizon", "n_sequences", "max_steps", "n_ray_samples", "n_target_points"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or v < 1:
+                raise ValidationError(f"{name} must be an integer >= 1, got {v!r}")
+        if not (0.0 < self.gamma <= 1.0):
+            raise ValidationError(f"gamma must be in (0, 1], got {self.gamma!r}")
+        if not (math.isfinite(self.alpha) and self.alpha >= 0):
+            raise ValidationError(f"alpha must be finite and >= 0, got {self.alpha!r}")
+        if not (0.0 < self.render_scale <= 1.0):
+            raise ValidationError(f"render_scale must be in (0, 1], got {self.render_scale!r}")
+        if self.n_gripper_points < 16:
+            raise ValidationError(f"n_gripper_points must be >= 16, got {self.n_gripper_points!r}")
+        if not self.push_distances or min(self.push_distances) <= 0:
+            raise ValidationError(f"push_distances must be positive, got {self.push_distances!r}")
