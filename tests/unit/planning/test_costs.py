@@ -1,0 +1,175 @@
+"""Task costs (4.4.6, 4.4.7, 4.7.9, B.5.13) on hand-made states, and the batched collision test."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from planning_helpers import box
+from sqmanip.geometry.superquadric import implicit_homogeneous
+from sqmanip.grasping import always_reachable
+from sqmanip.grasping.config import PANDA_HAND
+from sqmanip.planning import (
+    GraspCostSpec,
+    GraspFeasibility,
+    PackedScene,
+    TableSpec,
+    grasping_cost,
+    gripper_part_values,
+    interactive_moving_cost,
+    moving_cost,
+    objects_off_table,
+    singulation_cost,
+)
+from sqmanip.planning.costs import GripperCloud
+
+
+def poses_at(*xyz) -> torch.Tensor:
+    T = torch.eye(4, dtype=torch.float64).repeat(len(xyz), 1, 1)
+    T[:, :3, 3] = torch.tensor(xyz, dtype=torch.float64)
+    return T
+
+
+def rotz(theta: float) -> torch.Tensor:
+    c, s = math.cos(theta), math.sin(theta)
+    return torch.tensor([[c, -s, 0], [s, c, 0], [0, 0, 1]], dtype=torch.float64)
+
+
+class TestMovingCost:
+    def test_zero_at_goal_and_squared_distance_elsewhere(self):
+        goals = poses_at((0.5, 0.0, 0.02), (0.4, 0.1, 0.02))
+        assert moving_cost(goals, goals, beta=1.0).item() == 0.0
+        moved = goals.clone()
+        moved[0, 0, 3] += 0.03
+        moved[1, 1, 3] -= 0.04
+        assert moving_cost(moved, goals).item() == pytest.approx(0.03**2 + 0.04**2)
+
+    def test_beta_weights_the_rotation_distance(self):
+        goals = poses_at((0.5, 0.0, 0.02))
+        turned = goals.clone()
+        turned[0, :3, :3] = rotz(math.pi / 2)  # d = 1 - cos(90 deg) = 1
+        assert moving_cost(turned, goals, beta=0.0).item() == pytest.approx(0.0)
+        assert moving_cost(turned, goals, beta=0.3).item() == pytest.approx(0.3)
+
+    def test_weights_ignore_objects_without_goal_and_batch(self):
+        goals = poses_at((0.5, 0.0, 0.0), (0.4, 0.0, 0.0))
+        states = torch.stack([goals, goals + 0.0])
+        states[1, 1, 0, 3] += 1.0
+        w = torch.tensor([1.0, 0.0], dtype=torch.float64)
+        assert moving_cost(states, goals, weights=w).tolist() == [0.0, 0.0]
+        assert moving_cost(states, goals).tolist() == pytest.approx([0.0, 1.0])
+
+
+class TestSingulationCost:
+    def test_sign_and_tau(self):
+        # two objects 10 cm apart fall 10 cm short of tau = 20 cm: cost +0.10 (positive)
+        close = poses_at((0.4, 0.0, 0.0), (0.5, 0.0, 0.0))
+        assert singulation_cost(close, 0.20).item() == pytest.approx(0.10)
+        # 30 cm apart: separated, cost 0; with tau = 0.40 they are 10 cm short again
+        far = poses_at((0.3, 0.0, 0.0), (0.6, 0.0, 0.0))
+        assert singulation_cost(far, 0.20).item() == 0.0
+        assert singulation_cost(far, 0.40).item() == pytest.approx(0.10)
+
+    def test_closest_pair_decides_and_separating_lowers_cost(self):
+        three = poses_at((0.3, 0.0, 0.0), (0.35, 0.0, 0.0), (0.7, 0.0, 0.0))
+        assert singulation_cost(three).item() == pytest.approx(0.15)
+        apart = poses_at((0.3, 0.0, 0.0), (0.45, 0.0, 0.0), (0.7, 0.0, 0.0))
+        assert singulation_cost(apart).item() < singulation_cost(three).item()
+
+    def test_single_object_is_free(self):
+        assert singulation_cost(poses_at((0.4, 0.0, 0.0))).item() == 0.0
+
+
+def test_interactive_moving_cost_is_squared_target_distance():
+    s = poses_at((0.4, 0.0, 0.02), (0.2, 0.1, 0.02))
+    assert interactive_moving_cost(s, 1, np.array([0.3, 0.1, 0.02])).item() == pytest.approx(0.01)
+    assert interactive_moving_cost(s, 0, np.array([0.4, 0.0, 0.02])).item() == 0.0
+
+
+def test_grasping_cost_is_one_minus_any():
+    f = torch.tensor([[False, True, False], [False, False, False]])
+    assert grasping_cost(f).tolist() == [0.0, 1.0]
+    assert grasping_cost(torch.zeros(4, 0, dtype=torch.bool)).tolist() == [1.0] * 4
+
+
+def test_objects_off_table():
+    table = TableSpec(center=(0.45, 0.0), size=(0.8, 1.0))
+    s = torch.stack([poses_at((0.45, 0.49, 0.0)), poses_at((0.45, 0.51, 0.0))])
+    assert objects_off_table(s, table).tolist() == [False, True]
+    assert objects_off_table(s, table, margin=0.02).tolist() == [True, True]
+
+
+# --- grasp feasibility (B.5.13) ------------------------------------------------------------------
+
+
+def checker(**kw) -> GraspFeasibility:
+    return GraspFeasibility(
+        always_reachable, spec=GraspCostSpec(**kw), gripper=PANDA_HAND, table=TableSpec()
+    )
+
+
+def grasp_cost_now(objects, target=0, **kw) -> float:
+    scene = PackedScene.from_objects(objects)
+    feas = checker(**kw).feasible(scene, scene.poses[None], target)
+    return grasping_cost(feas).item()
+
+
+def test_free_box_is_graspable():
+    assert grasp_cost_now([([box(0.45, 0.0)], 1)]) == 0.0
+
+
+def test_boxed_in_target_is_not_graspable():
+    # 5 cm target, four taller 6 cm neighbours 1 cm away on every side
+    objs = [([box(0.45, 0.0, (0.05, 0.05, 0.10))], 0)]
+    for k, (dx, dy) in enumerate([(0.065, 0), (-0.065, 0), (0, 0.065), (0, -0.065)]):
+        objs.append(([box(0.45 + dx, dy, (0.06, 0.06, 0.14))], k + 1))
+    assert grasp_cost_now(objs) == 1.0
+    assert grasp_cost_now(objs[:1]) == 0.0  # the same target alone is
+
+
+def test_target_wider_than_the_opening_is_not_graspable():
+    assert grasp_cost_now([([box(0.45, 0.0, (0.12, 0.12, 0.12))], 0)]) == 1.0
+
+
+def test_flat_box_is_graspable_only_where_it_overhangs_the_table_edge():
+    flat = (0.16, 0.16, 0.03)
+    assert grasp_cost_now([([box(0.45, 0.0, flat)], 0)]) == 1.0
+    assert grasp_cost_now([([box(0.45, 0.48, flat)], 0)]) == 0.0  # 6 cm past y = 0.5
+    assert grasp_cost_now([([box(0.45, 0.48, flat)], 0)], edge_grasps=False) == 1.0
+
+
+def test_feasibility_moves_with_predicted_states():
+    # the flat box is infeasible now, feasible in a predicted state pushed over the edge
+    scene = PackedScene.from_objects([([box(0.45, 0.40, (0.16, 0.16, 0.03))], 0)])
+    states = scene.poses[None].repeat(2, 1, 1, 1)
+    states[1, 0, 1, 3] += 0.08
+    assert grasping_cost(checker().feasible(scene, states, 0)).tolist() == [1.0, 0.0]
+
+
+def test_gripper_part_values_equals_dense_evaluation():
+    gen = torch.Generator().manual_seed(0)
+    scene = PackedScene.from_objects(
+        [([box(0.45, 0.0)], 0), ([box(0.5, 0.06, (0.04, 0.08, 0.1), yaw=0.4)], 1)]
+    )
+    cloud = GripperCloud.from_spec(PANDA_HAND, 256)
+    S, Q = 3, 20
+    frames = torch.eye(4).repeat(S, Q, 1, 1)
+    frames[..., :3, 3] = torch.tensor([0.47, 0.03, 0.05]) + 0.08 * (
+        torch.rand(S, Q, 3, generator=gen) - 0.5
+    )
+    ang = torch.rand(S, Q, generator=gen) * 6.28
+    frames[..., 0, 0], frames[..., 0, 1] = torch.cos(ang), -torch.sin(ang)
+    frames[..., 1, 0], frames[..., 1, 1] = torch.sin(ang), torch.cos(ang)
+    part_poses = scene.part_poses(scene.poses)[None]
+    got = gripper_part_values(frames, cloud, part_poses, scene)
+    world = frames[..., None, :3, :3] @ cloud.points.T + frames[..., None, :3, 3:]  # (S,Q,1,3,P)
+    world = world.squeeze(2).transpose(-1, -2)  # (S, Q, P, 3)
+    for m in range(2):
+        T = part_poses[0, m]
+        local = (world - T[:3, 3]) @ T[:3, :3]
+        dense = implicit_homogeneous(local, scene.part_params[m], 0).amin(-1)
+        collide_dense = dense < 1.0
+        assert torch.equal(got[..., m] < 1.0, collide_dense)
+        assert collide_dense.any() and (~collide_dense).any()
