@@ -10,9 +10,9 @@ parts) and returns feasible grasps, best first:
 3. order: by score, ties (e.g. many exactly top-down grasps) broken uniformly at random from
    ``options.seed``, as 3.4.2 picks randomly among equal maxima;
 4. feasibility, lazily in that order, ``chunk_size`` candidates at a time until ``max_results``
-   are found: kinematic feasibility (the constructor's ``reachability``) then collisions of the
-   open gripper with the support plane, shelf boxes, the other objects and the target itself
-   (3.7.15, B.5.12, :mod:`.collision`).
+   are found: collisions of the open gripper with the support plane, shelf boxes, the other
+   objects and the target itself (3.7.15, B.5.12, :mod:`.collision`; one batched call), then
+   kinematic feasibility (the constructor's ``reachability``, per pose) of the collision-free.
 
 Deterministic given ``options.seed``.
 """
@@ -249,11 +249,7 @@ class GraspPlanner:
                 break
             idx = order[start : start + opt.chunk_size]
             n_checked += idx.numel()
-            reach = self._reachable(cands.poses[idx])
-            n_unreach += int((~reach).sum())
-            idx = idx[torch.as_tensor(reach)]
-            if idx.numel() == 0:
-                continue
+            # Collisions first: one batched implicit-function call; IK (per pose) only on the rest.
             res = check_collisions(
                 scene, transform_gripper_points(cands.poses[idx].to(self.dtype), pts)
             )
@@ -261,7 +257,12 @@ class GraspPlanner:
             for label in res.obstacle_labels():
                 if label is not None:
                     coll_counts[label] = coll_counts.get(label, 0) + 1
-            chosen.extend(idx[~res.collides].tolist())
+            idx = idx[~res.collides]
+            if idx.numel() == 0:
+                continue
+            reach = self._reachable(cands.poses[idx])
+            n_unreach += int((~reach).sum())
+            chosen.extend(idx[torch.as_tensor(reach)].tolist())
         chosen = chosen[:limit]
         t3 = time.perf_counter()
         timings["feasibility"] = 1e3 * (t3 - t2)

@@ -97,7 +97,10 @@ def test_unreachable_grasps_are_rejected():
     assert grasps and all(g.approach[2] > -0.5 for g in grasps)
     never = GraspPlanner(lambda poses: np.zeros(len(poses), dtype=bool))
     result = never.plan_detailed([target], environment=TABLE, options=OPTS)
-    assert result.grasps == [] and result.stats.n_unreachable == result.stats.n_checked > 0
+    stats = result.stats
+    assert result.grasps == [] and stats.n_unreachable > 0
+    # every checked candidate was refused: by a collision, or else (collision-free) by the IK
+    assert stats.n_unreachable + stats.n_colliding == stats.n_checked
 
 
 def test_default_reachability_is_a_workspace_radius():
