@@ -1,0 +1,250 @@
+"""Pushing dynamics benchmarks (Ch. 4.6, 4.7): prediction throughput and the equivariance study.
+
+Run: ``python -m benchmarks.dynamics [--quick] [--parts throughput equivariance]``. Each part
+prints its table and is stored under its name in ``benchmarks/results/dynamics.json`` (parts not
+run keep their previous entries, so parts can be re-run one at a time). New parts (the known /
+unknown test metrics of Tables 4.2 and 4.4) register in ``PARTS``.
+
+- ``throughput``: latency of ``SQPDNet.predict`` for 100 actions x 4 objects with the B.3 widths
+  (float32, CPU) at 1 and 2 torch threads: the shared-scene fast path, the reference path (scene
+  broadcast through ``forward``), and a sequential loop of 100 one-action calls (the authors'
+  public controller rolls sampled sequences out one at a time). Target: <= 10 ms (issue 7).
+- ``equivariance`` (4.6.1, Table 4.1): train on ONE single-object tuple from the simulator,
+  test on 9 random SE(2) transforms of it (scene, action, next scene and observed cloud);
+  10 tuples (3 with --quick), so 90 tests. SQPD-Net (equivariant, shape alignment) vs the
+  world-frame network of 4.7.1 without augmentation. Visible and full flow error in cm.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from sqmanip.dynamics.config import SQPDNetConfig, baseline_config, get_config
+from sqmanip.dynamics.data import PushTuple, tensors_from_tuples
+from sqmanip.dynamics.metrics import flow_rmse, visible_flow_rmse, volume_points
+from sqmanip.dynamics.model import SQPDNet, make_model
+from sqmanip.dynamics.sampler import sample_push_actions
+from sqmanip.dynamics.train import train_step
+from sqmanip.geometry.transforms import se2_matrix
+
+RESULTS = Path(__file__).parent / "results" / "dynamics.json"
+WORKSPACE = np.array([[0.194, -0.256, 0.0], [0.706, 0.256, 0.192]])
+
+
+# --- shared helpers -------------------------------------------------------------------------------
+
+
+def time_calls(fns: dict[str, Callable[[], Any]], reps: int) -> dict[str, dict[str, float]]:
+    """Median / min wall time (ms) of each function, interleaved (one call of each per round)."""
+    for fn in fns.values():
+        fn()
+    times: dict[str, list[float]] = {k: [] for k in fns}
+    for _ in range(reps):
+        for name, fn in fns.items():
+            t0 = time.perf_counter()
+            fn()
+            times[name].append((time.perf_counter() - t0) * 1e3)
+    return {
+        k: {"median_ms": float(np.median(v)), "min_ms": float(np.min(v))} for k, v in times.items()
+    }
+
+
+def tabletop_scene(seed: int, n: int = 4):
+    """``n`` upright boxes / cylinders on a grid in the workspace (float32 poses, params)."""
+    rng = np.random.default_rng(seed)
+    poses = np.tile(np.eye(4), (n, 1, 1))
+    params = np.zeros((n, 9))
+    cells = rng.permutation(9)[:n]
+    for i, c in enumerate(cells):
+        a = rng.uniform(0.02, 0.04, 3)
+        yaw = rng.uniform(-math.pi, math.pi)
+        poses[i, :2, :2] = [[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]]
+        poses[i, :3, 3] = (0.3 + 0.15 * (c % 3), -0.15 + 0.15 * (c // 3), a[2])
+        params[i, :5] = (*a, 0.2, 0.2 if i % 2 else 1.0)
+    return poses, params
+
+
+# --- part: throughput -----------------------------------------------------------------------------
+
+
+def part_throughput(args: argparse.Namespace) -> dict[str, Any]:
+    torch.manual_seed(0)
+    model = SQPDNet(get_config("gpu", device="cpu")).eval()
+    poses, params = tabletop_scene(0)
+    acts_sampler = sample_push_actions((poses, params), WORKSPACE, np.random.default_rng(0), n=100)
+    rng = np.random.default_rng(1)
+    ang = rng.uniform(-math.pi, math.pi, 100)
+    acts_random = np.concatenate(
+        [rng.uniform(WORKSPACE[0], WORKSPACE[1], (100, 3)) * [1, 1, 0.5],
+         0.1 * np.stack([np.cos(ang), np.sin(ang), 0 * ang], 1)], 1,
+    )  # fmt: skip
+    P = torch.as_tensor(poses, dtype=torch.float32)
+    Q = torch.as_tensor(params, dtype=torch.float32)
+    reps = 20 if args.quick else 100
+    before = torch.get_num_threads()
+    rows = []
+    try:
+        for threads in (1, 2):
+            torch.set_num_threads(threads)
+            for label, acts in (("sampler", acts_sampler), ("random", acts_random)):
+                A = torch.as_tensor(acts, dtype=torch.float32)
+                k = A.shape[0]
+                fns = {
+                    "batched (fast path)": lambda A=A: model.predict(P, Q, A),
+                    "batched (reference)": lambda A=A: model.predict(P, Q, A, fast=False),
+                    "sequential loop": lambda A=A: [
+                        model.predict(P, Q, A[j : j + 1]) for j in range(A.shape[0])
+                    ],
+                }
+                res = time_calls(fns, reps if label == "sampler" else max(5, reps // 4))
+                for name, r in res.items():
+                    rows.append({"threads": threads, "actions": label, "k": k, "n": 4,
+                                 "method": name, **r})  # fmt: skip
+    finally:
+        torch.set_num_threads(before)
+    print(f"\nthroughput: SQPDNet.predict, {acts_sampler.shape[0]} actions x 4 objects, "
+          "B.3 widths, float32 (ms; target <= 10)")  # fmt: skip
+    print(f"{'threads':>7s} {'actions':>8s} {'method':<22s} {'median':>8s} {'min':>8s}")
+    for r in rows:
+        print(f"{r['threads']:>7d} {r['actions']:>8s} {r['method']:<22s} "
+              f"{r['median_ms']:8.2f} {r['min_ms']:8.2f}")  # fmt: skip
+    return {"rows": rows, "target_ms": 10.0}
+
+
+# --- part: equivariance study (4.6.1, Table 4.1) --------------------------------------------------
+
+
+def single_object_tuples(count: int, seed: int) -> list[PushTuple]:
+    """``count`` one-object tuples with observed clouds from the simulator (4.5 generator)."""
+    from sqmanip.dynamics.generate import GenerationConfig, make_catalogue, run_sequence
+    from sqmanip.sim import Simulator
+
+    cfg = GenerationConfig(seed=seed, cloud_points=512)
+    catalogue = [o for o in make_catalogue(0) if o.known]
+    out: list[PushTuple] = []
+    with Simulator() as sim:
+        s = 0
+        while len(out) < count:
+            rng = np.random.default_rng([seed, 461, s])
+            got = run_sequence(sim, catalogue, rng, cfg, n_objects=1, max_tuples=1, sequence=s)
+            moved = got and np.linalg.norm(got[0].next_poses[0, :2, 3] - got[0].poses[0, :2, 3])
+            if got and moved > 0.01:  # the push must move the object
+                out.append(got[0])
+            s += 1
+    return out
+
+
+def transform_tuple(t: PushTuple, C: np.ndarray) -> PushTuple:
+    """Apply a planar ``C`` of (4.3.2) to scene, action, next scene and cloud (Definition 4.1)."""
+    R, tr = C[:3, :3], C[:3, 3]
+    cloud = None if t.cloud is None else (t.cloud.astype(np.float64) @ R.T + tr)
+    return PushTuple(C @ t.poses, t.params, t.kinds, R @ t.action_p + tr, R @ t.action_v,
+                     C @ t.next_poses, t.object_ids, cloud, t.cloud_labels, t.sequence, t.step)  # fmt: skip
+
+
+def overfit(config: SQPDNetConfig, t: PushTuple, steps: int, seed: int) -> SQPDNet:
+    torch.manual_seed(seed)
+    model = make_model(config)
+    opt = torch.optim.Adam(model.parameters(), lr=1e-3)
+    batch = tensors_from_tuples([t], config.max_objects).batch
+    for _ in range(steps):
+        train_step(model, batch, opt)
+    return model.eval()
+
+
+def flow_errors(model: SQPDNet, tuples: list[PushTuple]) -> tuple[float, float]:
+    data = tensors_from_tuples(tuples, model.config.max_objects, dtype=torch.float32)
+    b = data.batch
+    with torch.no_grad():
+        pred = model.forward_batch(b)
+    vol, vmask = volume_points(b.params, b.kinds, 256, seed=0)
+    vis = visible_flow_rmse(b.poses, pred, b.next_poses, data.cloud, data.cloud_labels)
+    return vis, flow_rmse(pred, b.next_poses, vol, b.mask, vmask)
+
+
+def part_equivariance(args: argparse.Namespace) -> dict[str, Any]:
+    n_train = 3 if args.quick else 10
+    steps = 150 if args.quick else 400
+    preset = "cpu" if args.quick else "gpu"
+    tuples = single_object_tuples(n_train, seed=0)
+    rng = np.random.default_rng(7)
+    methods = {
+        "GT-SQPD-Net (ours)": get_config(preset, device="cpu"),
+        "world-frame net, no augmentation": baseline_config(
+            preset, device="cpu", augment_se2=False
+        ),  # fmt: skip
+    }
+    per: dict[str, dict[str, list[float]]] = {m: {"train_vis": [], "vis": [], "full": []}
+                                              for m in methods}  # fmt: skip
+    for j, t in enumerate(tuples):
+        tests = []
+        for _ in range(9):
+            th, tx, ty = rng.uniform(-math.pi, math.pi), *rng.uniform(-0.15, 0.15, 2)
+            tests.append(transform_tuple(t, se2_matrix(th, tx, ty).numpy()))
+        for name, cfg in methods.items():
+            model = overfit(cfg, t, steps, seed=j)
+            tr_vis, _ = flow_errors(model, [t])
+            vis, full = flow_errors(model, tests)
+            per[name]["train_vis"].append(tr_vis)
+            per[name]["vis"].append(vis)
+            per[name]["full"].append(full)
+    thesis = {"GT-SQPD-Net (ours)": 0.02}
+    print(f"\nequivariance (Table 4.1): train on 1 tuple, test on 9 SE(2) transforms, "
+          f"{n_train} tuples, {preset} widths, {steps} steps; flow errors (cm)")  # fmt: skip
+    print(f"{'method':<34s} {'train vis':>10s} {'test vis':>9s} {'test full':>10s} {'thesis':>7s}")
+    rows = []
+    for name, d in per.items():
+        row = {"method": name, **{k: float(np.mean(v)) for k, v in d.items()},
+               "thesis_visible_cm": thesis.get(name)}  # fmt: skip
+        rows.append(row)
+        th = f"{thesis[name]:.2f}" if name in thesis else "-"
+        print(f"{name:<34s} {row['train_vis']:10.4f} {row['vis']:9.4f} {row['full']:10.4f} "
+              f"{th:>7s}")  # fmt: skip
+    print("(thesis baselines, visible flow: 2DFlow 4.73, SE3-Net 4.73, SE3Pose-Net 4.72, "
+          "R-SQPD-Net 0.73)")  # fmt: skip
+    return {"rows": rows, "train_tuples": n_train, "tests": 9 * n_train, "steps": steps,
+            "preset": preset}  # fmt: skip
+
+
+PARTS: dict[str, Callable[[argparse.Namespace], dict[str, Any]]] = {
+    "throughput": part_throughput,
+    "equivariance": part_equivariance,
+}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="fewer repetitions / tuples / steps")
+    ap.add_argument("--parts", nargs="+", choices=list(PARTS), default=list(PARTS))
+    args = ap.parse_args(argv)
+    print(
+        "command:", " ".join([sys.executable, "-m", "benchmarks.dynamics", *(argv or sys.argv[1:])])
+    )
+    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+          f"torch {torch.__version__}, torch threads {torch.get_num_threads()}")  # fmt: skip
+    results: dict[str, Any] = json.loads(RESULTS.read_text()) if RESULTS.is_file() else {}
+    for name in args.parts:
+        t0 = time.perf_counter()
+        results[name] = {**PARTS[name](args), "quick": args.quick,
+                         "seconds": time.perf_counter() - t0}  # fmt: skip
+    results["machine"] = {"cores": os.cpu_count(), "torch": torch.__version__,
+                          "platform": platform.platform()}  # fmt: skip
+    RESULTS.parent.mkdir(parents=True, exist_ok=True)
+    RESULTS.write_text(json.dumps(results, indent=2) + "\n")
+    print(f"\nwrote {RESULTS}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
