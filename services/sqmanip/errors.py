@@ -55,3 +55,9 @@ class UnimplementedError(SQManipError):
     """A method or option this build does not provide (-> UNIMPLEMENTED, HTTP 501)."""
 
     code = "UNIMPLEMENTED"
+
+
+class DeadlineExceededError(SQManipError, TimeoutError):
+    """A call to another service ran past its deadline (-> DEADLINE_EXCEEDED, HTTP 504)."""
+
+    code = "DEADLINE_EXCEEDED"

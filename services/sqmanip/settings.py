@@ -18,6 +18,9 @@ class StackSettings(BaseSettings):
 
     host: str = "127.0.0.1"
     """Address every gRPC service binds and the gateway dials."""
+    service_hosts: dict[str, str] = {}
+    """Per-service host to dial instead of ``host`` (compose: ``{"perception": "perception"}``,
+    env ``SQMANIP_SERVICE_HOSTS='{"perception": "perception"}'``)."""
     gateway_host: str = "127.0.0.1"
     gateway_port: int = 8080
     viewer_port: int = 8081
@@ -41,7 +44,7 @@ class StackSettings(BaseSettings):
         return getattr(self, f"{service}_port")
 
     def address(self, service: str) -> str:
-        return f"{self.host}:{self.port(service)}"
+        return f"{self.service_hosts.get(service, self.host)}:{self.port(service)}"
 
 
 @lru_cache

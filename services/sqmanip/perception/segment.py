@@ -1,0 +1,105 @@
+"""Segmentation without training: Euclidean clustering plus a local-convexity split of objects
+that touch; or the caller's per-point labels.
+
+Clustering runs on a voxel-down-sampled copy (one representative per ``cluster_voxel`` voxel):
+representatives closer than ``cluster_radius`` are connected (scipy cKDTree pairs) and the
+connected components are clusters. Objects that touch are split by cutting *concave* edges
+(the criterion of locally-convex connected patches): with normals ``n`` oriented toward the
+sensor, two neighbouring surface points on one convex object satisfy
+``(n_i - n_j) . (x_i - x_j) >= 0`` (normals diverge); where two objects meet, the seam is concave
+and the product is negative. Normals are smeared across the seam, so instead of cutting single
+edges, nodes with at least two concave edges are removed as *seam* nodes; the remaining
+components (of at least ``min_cluster_points`` points) are seeds and every seam node or small
+fragment joins its nearest seed node. Coplanar flush faces (two
+boxes of equal height pushed together) have no concave seam and stay one segment.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from .config import PerceptionSettings
+from .preprocess import estimate_normals, voxel_downsample
+
+
+def segments_from_labels(labels: np.ndarray, min_points: int = 1) -> list[np.ndarray]:
+    """Index arrays of each label >= 0 (ascending label order), dropping labels with fewer
+    than ``min_points`` points."""
+    out = []
+    for lab in np.unique(labels):
+        if lab < 0:
+            continue
+        idx = np.flatnonzero(labels == lab)
+        if len(idx) >= min_points:
+            out.append(idx)
+    return out
+
+
+def _components(n: int, edges: np.ndarray) -> np.ndarray:
+    if len(edges) == 0:
+        return np.arange(n)
+    g = coo_matrix((np.ones(len(edges), dtype=np.int8), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    _, lab = connected_components(g, directed=False)
+    return lab
+
+
+def _split_concave(
+    x: np.ndarray,
+    edges: np.ndarray,
+    weight: np.ndarray,
+    normals: np.ndarray,
+    settings: PerceptionSettings,
+) -> np.ndarray:
+    """Labels ``(M,)`` after removing seam nodes (>= 2 concave edges) and regrowing.
+
+    Components of the graph without seam nodes that weigh at least ``min_cluster_points``
+    points are seeds; every other node (seam, fragment) joins the seed of its nearest seed node.
+    """
+    d = x[edges[:, 0]] - x[edges[:, 1]]
+    dn = normals[edges[:, 0]] - normals[edges[:, 1]]
+    conv = (dn * d).sum(1) / np.linalg.norm(d, axis=1).clip(1e-12)
+    concave = conv < -settings.concavity_tolerance
+    seam = np.bincount(edges[concave].ravel(), minlength=len(x)) >= 2
+    keep = ~seam[edges[:, 0]] & ~seam[edges[:, 1]]
+    lab = _components(len(x), edges[keep])
+    w = np.bincount(lab, weights=weight * ~seam)
+    seed = ~seam & (w[lab] >= settings.min_cluster_points)
+    if not seed.any():
+        return np.zeros(len(x), dtype=np.int64)
+    seeds = np.flatnonzero(seed)
+    _, nearest = cKDTree(x[seeds]).query(x[~seed])
+    lab = lab.copy()
+    lab[~seed] = lab[seeds[nearest]]
+    return np.unique(lab, return_inverse=True)[1].reshape(-1)
+
+
+def cluster(
+    points: np.ndarray,
+    settings: PerceptionSettings,
+    viewpoint: np.ndarray | None = None,
+) -> list[np.ndarray]:
+    """Segments of ``points (N, 3)`` as index arrays, largest first (see module docstring)."""
+    if len(points) == 0:
+        return []
+    rep, inverse = voxel_downsample(points, settings.cluster_voxel)
+    x = points[rep].astype(np.float64)
+    weight = np.bincount(inverse, minlength=len(rep)).astype(np.float64)
+    tree = cKDTree(x)
+    edges = tree.query_pairs(settings.cluster_radius, output_type="ndarray")
+    labels = _components(len(x), edges)
+    if settings.split_touching and len(edges) and len(x) >= 3:
+        nrm = estimate_normals(x, settings.normal_neighbors, viewpoint, tree)
+        split = _split_concave(x, edges, weight, nrm, settings)
+        # never merge across Euclidean clusters: combine both labelings
+        labels = np.unique(labels * (split.max() + 1) + split, return_inverse=True)[1].reshape(-1)
+    point_labels = labels[inverse]
+    counts = np.bincount(point_labels)
+    order = np.argsort(-counts, kind="stable")
+    return [
+        np.flatnonzero(point_labels == lab)
+        for lab in order
+        if counts[lab] >= settings.min_cluster_points
+    ]

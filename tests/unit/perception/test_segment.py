@@ -1,0 +1,52 @@
+"""Euclidean clustering, convexity split of touching objects, and label segments."""
+
+from __future__ import annotations
+
+import numpy as np
+from sqmanip.perception.config import PerceptionSettings
+from sqmanip.perception.segment import cluster, segments_from_labels
+
+EYE = np.array([0.0, -0.5, 0.6])
+
+
+def _visible_sphere(center, radius, rng, n=3000):
+    v = rng.normal(size=(n, 3))
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    pts = center + radius * v
+    seen = ((EYE - pts) * v).sum(1) > 0
+    return pts[seen] + rng.normal(scale=0.0005, size=(seen.sum(), 3))
+
+
+def test_separated_objects_become_separate_clusters_and_clutter_is_dropped():
+    rng = np.random.default_rng(0)
+    a = _visible_sphere(np.array([0.0, 0.0, 0.05]), 0.05, rng)
+    b = _visible_sphere(np.array([0.15, 0.0, 0.04]), 0.04, rng)
+    speck = np.array([[0.4, 0.4, 0.4], [0.401, 0.4, 0.4]])
+    pts = np.concatenate([a, b, speck])
+    segs = cluster(pts, PerceptionSettings(), EYE)
+    assert len(segs) == 2
+    assert set(segs[0]) == set(range(len(a)))
+    assert set(segs[1]) == set(range(len(a), len(a) + len(b)))
+
+
+def test_touching_objects_are_split_at_the_concave_seam():
+    rng = np.random.default_rng(1)
+    a = _visible_sphere(np.array([0.0, 0.0, 0.05]), 0.05, rng, 6000)
+    b = _visible_sphere(np.array([0.095, 0.0, 0.05]), 0.05, rng, 6000)
+    # keep only the visible union (points of one sphere inside the other are hidden)
+    a = a[np.linalg.norm(a - [0.095, 0, 0.05], axis=1) > 0.05]
+    b = b[np.linalg.norm(b - [0.0, 0, 0.05], axis=1) > 0.05]
+    pts = np.concatenate([a, b])
+    merged = cluster(pts, PerceptionSettings(split_touching=False), EYE)
+    assert len(merged) == 1
+    segs = cluster(pts, PerceptionSettings(), EYE)
+    assert len(segs) == 2
+    truth = np.r_[np.zeros(len(a)), np.ones(len(b))]
+    purity = [np.bincount(truth[s].astype(int)).max() / len(s) for s in segs]
+    assert min(purity) > 0.95
+
+
+def test_segments_from_labels_ignores_background_and_tiny_labels():
+    labels = np.array([-1, 0, 0, 2, 2, 2, -1, 5])
+    segs = segments_from_labels(labels, min_points=2)
+    assert [s.tolist() for s in segs] == [[1, 2], [3, 4, 5]]
