@@ -4,7 +4,7 @@ Defaults follow the thesis: 100 action sequences (B.4), horizon 1 for moving, si
 interactive moving and 3 for grasping (B.4, 4.7.3), ``n_gr = 512`` gripper points and at most 30
 rule-based grasp candidates of width <= 7 cm (B.5), the 0.512 x 0.512 x 0.192 m workspace of
 4.5. The table is the simulator's (``sqmanip.sim.config``: 0.80 x 1.00 x 0.05 m, top face at
-``z = 0``, centred under the workspace at ``(0.45, 0)``); the numbers are repeated here rather
+``z = 0``, centred 0.10 m beyond the workspace centre at ``(0.55, 0)``); the numbers are repeated here rather
 than imported so that planning does not import PyBullet through ``sqmanip.sim``.
 """
 
@@ -38,7 +38,7 @@ class TableSpec:
     edge becomes graspable from the side (4.6.3, "grasping large").
     """
 
-    center: tuple[float, float] = (0.45, 0.0)
+    center: tuple[float, float] = (0.55, 0.0)
     """Table centre in the world x-y plane (m)."""
     size: tuple[float, float] = (0.80, 1.00)
     """Table extent along world x and y (m)."""

@@ -544,11 +544,6 @@ class GraspFeasibility:
         local = se3_inverse(scene.poses[target]) @ cands.poses  # (C, 4, 4) in the target's frame
         frames = states[:, target, None] @ local  # (S, C, 4, 4) float64
         ok = torch.ones(S, C, dtype=torch.bool)
-        # kinematic feasibility
-        reach = np.asarray(self.reachability(frames.reshape(-1, 4, 4).numpy()), dtype=bool)
-        if reach.shape != (S * C,):
-            raise ValueError(f"reachability must return shape ({S * C},), got {reach.shape}")
-        ok &= torch.as_tensor(reach).reshape(S, C)
         # the target itself: state-independent
         is_target = scene.part_object == target
         if self.spec.check_target:
@@ -573,4 +568,14 @@ class GraspFeasibility:
                 frames, self.cloud, scene.part_poses(states), scene, ~is_target, ok
             )
             ok &= ~(vals < 1.0).any(-1)
+        # kinematic feasibility last: IK is per pose, the checks above are one batched call each
+        s_idx, c_idx = ok.nonzero(as_tuple=True)
+        if s_idx.numel():
+            poses = frames[s_idx, c_idx].numpy()
+            reach = np.asarray(self.reachability(poses), dtype=bool)
+            if reach.shape != (len(poses),):
+                raise ValueError(
+                    f"reachability must return shape ({len(poses)},), got {reach.shape}"
+                )
+            ok[s_idx, c_idx] = torch.as_tensor(reach)
         return ok
