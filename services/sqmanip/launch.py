@@ -42,6 +42,8 @@ SERVICE_MODULES: dict[str, str] = {
     "sim": "sqmanip.sim.server",
     "grasp": "sqmanip.grasping.server",
     "dynamics": "sqmanip.dynamics.server",
+    "mpc": "sqmanip.planning.server",
+    "search": "sqmanip.search.server",
     # later services: one line each
 }
 """Service name (a ``StackSettings`` port prefix) -> module run as ``python -m module --port P``."""

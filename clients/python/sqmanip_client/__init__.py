@@ -17,6 +17,7 @@ from .errors import (
     TooManyRequestsError,
 )
 from .geometry import surface_points, to_mesh, to_superquadric
+from .planning import EpisodeStatus, MPCPlan, SearchMaps
 from .types import (
     CameraIntrinsics,
     Grasp,
@@ -41,6 +42,9 @@ __all__ = [
     "CameraIntrinsics",
     "Client",
     "ConnectionError",
+    "EpisodeStatus",
+    "MPCPlan",
+    "SearchMaps",
     "GatewayTimeoutError",
     "Grasp",
     "GraspPlan",

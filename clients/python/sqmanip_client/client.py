@@ -3,7 +3,10 @@
 ``recognize`` sends the compact binary body (N x 3 float32 little-endian, options as query
 parameters) when only points (and a viewpoint / workspace) are given, and JSON when colors or
 labels are sent. The ``sim_*`` methods drive the simulator (``/sim``), ``plan_grasps`` plans
-grasps (``/grasps``) and ``predict`` predicts pushes (``/predict``). Errors become
+grasps (``/grasps``), ``predict`` predicts pushes (``/predict``), ``plan`` runs one pushing-MPC
+step (``/plan``), ``start_*_episode`` / ``get_*_episode`` run closed-loop episodes in the
+background (``/mpc/episodes``, ``/search/episodes``) and ``evaluate_search`` returns the shelf
+search's f and g maps (``/search/evaluate``). Errors become
 :mod:`sqmanip_client.errors` exceptions.
 """
 
@@ -16,7 +19,8 @@ from typing import Any
 import httpx
 import numpy as np
 
-from . import errors, grasps, sim
+from . import errors, grasps, planning, sim
+from .planning import EpisodeStatus, MPCPlan, SearchMaps
 from .types import (
     GraspPlan,
     Prediction,
@@ -284,6 +288,53 @@ class Client:
         body = grasps.predict_body(objects, actions, model)
         return prediction_from_json(self._send("POST", "/predict", json=body).json())
 
+    def plan(self, objects: Any, task: Mapping[str, Any], **options: Any) -> MPCPlan:
+        """One pushing-MPC step: the push to execute now. ``objects``: a :class:`Scene`, its
+        recognized objects, or ``(parts, id)`` pairs; ``task``: ``{"kind": "moving", "goals":
+        {id: (x, y, z)}}``, ``{"kind": "singulation", "tau": 0.2}``, ``{"kind": "grasping",
+        "target_id": i}`` or ``{"kind": "interactive_moving", "target_id": i, "goal": (x, y,
+        z)}``; ``options``: num_sequences, horizon, seed, dynamics_model (sqpdnet | physics).
+        A physics-model step takes about 1 s per sequence: raise the client timeout."""
+        body = planning.plan_body(objects, task, options)
+        return planning.plan_from_json(self._send("POST", "/plan", json=body).json())
+
+    def start_mpc_episode(self, kind: str, index: int = 0, seed: int = 0, **body: Any) -> str:
+        """Start a closed-loop pushing episode (scenario ``kind``, ``index``, ``seed``); returns
+        its id. ``body``: objects (recognition | ground_truth), max_steps, options (dict)."""
+        payload = {"kind": kind, "index": index, "seed": seed, **body}
+        return self._send("POST", "/mpc/episodes", json=payload).json()["id"]
+
+    def get_mpc_episode(self, episode_id: str) -> EpisodeStatus:
+        return planning.episode_from_json(self._send("GET", f"/mpc/episodes/{episode_id}").json())
+
+    def start_search_episode(self, scenario: Any = None, **body: Any) -> str:
+        """Start a shelf-search episode; ``scenario`` a ShelfScenario dict (or None: generate
+        from ``n_objects``, ``seed``); ``body``: method, shapes, actions, dynamics_model,
+        max_steps, num_sequences, plan_seed. Returns the episode id."""
+        payload = {**body}
+        if scenario is not None:
+            payload["scenario"] = scenario if isinstance(scenario, Mapping) else scenario.to_dict()
+        return self._send("POST", "/search/episodes", json=payload).json()["id"]
+
+    def get_search_episode(self, episode_id: str) -> EpisodeStatus:
+        return planning.episode_from_json(
+            self._send("GET", f"/search/episodes/{episode_id}").json()
+        )
+
+    def evaluate_search(
+        self,
+        objects: Any,
+        target: Mapping[str, Any] | None = None,
+        *,
+        target_pose: Any = None,
+        **options: Any,
+    ) -> SearchMaps:
+        """f and g over the target pose grid for ``objects`` (superquadric parts) on the shelf;
+        ``target``: ``{"kind": "cylinder", "size": half extents}``; ``target_pose`` marks the
+        target visible there; ``options``: shelf, camera, resolution, n_theta."""
+        body = planning.evaluate_body(objects, target, target_pose, options)
+        return planning.maps_from_json(self._send("POST", "/search/evaluate", json=body).json())
+
     def close(self) -> None:
         if self._own:
             self._http.close()
@@ -434,6 +485,44 @@ class AsyncClient:
         """See :meth:`Client.predict`."""
         body = grasps.predict_body(objects, actions, model)
         return prediction_from_json((await self._send("POST", "/predict", json=body)).json())
+
+    async def plan(self, objects: Any, task: Mapping[str, Any], **options: Any) -> MPCPlan:
+        """See :meth:`Client.plan`."""
+        body = planning.plan_body(objects, task, options)
+        return planning.plan_from_json((await self._send("POST", "/plan", json=body)).json())
+
+    async def start_mpc_episode(self, kind: str, index: int = 0, seed: int = 0, **body: Any) -> str:
+        """See :meth:`Client.start_mpc_episode`."""
+        payload = {"kind": kind, "index": index, "seed": seed, **body}
+        return (await self._send("POST", "/mpc/episodes", json=payload)).json()["id"]
+
+    async def get_mpc_episode(self, episode_id: str) -> EpisodeStatus:
+        r = await self._send("GET", f"/mpc/episodes/{episode_id}")
+        return planning.episode_from_json(r.json())
+
+    async def start_search_episode(self, scenario: Any = None, **body: Any) -> str:
+        """See :meth:`Client.start_search_episode`."""
+        payload = {**body}
+        if scenario is not None:
+            payload["scenario"] = scenario if isinstance(scenario, Mapping) else scenario.to_dict()
+        return (await self._send("POST", "/search/episodes", json=payload)).json()["id"]
+
+    async def get_search_episode(self, episode_id: str) -> EpisodeStatus:
+        r = await self._send("GET", f"/search/episodes/{episode_id}")
+        return planning.episode_from_json(r.json())
+
+    async def evaluate_search(
+        self,
+        objects: Any,
+        target: Mapping[str, Any] | None = None,
+        *,
+        target_pose: Any = None,
+        **options: Any,
+    ) -> SearchMaps:
+        """See :meth:`Client.evaluate_search`."""
+        body = planning.evaluate_body(objects, target, target_pose, options)
+        r = await self._send("POST", "/search/evaluate", json=body)
+        return planning.maps_from_json(r.json())
 
     async def aclose(self) -> None:
         if self._own:

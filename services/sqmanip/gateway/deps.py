@@ -12,7 +12,14 @@ from typing import Annotated
 import grpc
 from fastapi import Depends, Request
 
-from sqmanip.v1 import dynamics_pb2_grpc, grasp_pb2_grpc, perception_pb2_grpc, sim_pb2_grpc
+from sqmanip.v1 import (
+    dynamics_pb2_grpc,
+    grasp_pb2_grpc,
+    perception_pb2_grpc,
+    planner_pb2_grpc,
+    search_pb2_grpc,
+    sim_pb2_grpc,
+)
 
 from .config import GatewaySettings
 from .errors import HTTPError
@@ -46,8 +53,18 @@ def get_dynamics(request: Request) -> dynamics_pb2_grpc.DynamicsStub:
     return dynamics_pb2_grpc.DynamicsStub(channel_for(request, "dynamics"))
 
 
+def get_planner(request: Request) -> planner_pb2_grpc.PlannerStub:
+    return planner_pb2_grpc.PlannerStub(channel_for(request, "mpc"))
+
+
+def get_search(request: Request) -> search_pb2_grpc.SearchStub:
+    return search_pb2_grpc.SearchStub(channel_for(request, "search"))
+
+
 SettingsDep = Annotated[GatewaySettings, Depends(get_settings)]
 PerceptionDep = Annotated[perception_pb2_grpc.PerceptionStub, Depends(get_perception)]
 SimDep = Annotated[sim_pb2_grpc.SimulatorStub, Depends(get_sim)]
 GraspDep = Annotated[grasp_pb2_grpc.GraspPlannerStub, Depends(get_grasp)]
 DynamicsDep = Annotated[dynamics_pb2_grpc.DynamicsStub, Depends(get_dynamics)]
+PlannerDep = Annotated[planner_pb2_grpc.PlannerStub, Depends(get_planner)]
+SearchDep = Annotated[search_pb2_grpc.SearchStub, Depends(get_search)]

@@ -699,3 +699,203 @@ class PredictResponse(BaseModel):
         None, description="Physics model: pushes the robot could not execute (poses unchanged)."
     )
     latency_ms: float = Field(description="Server-side inference time (ms).")
+
+
+# --- MPC planner (/plan, /mpc/episodes) and shelf search (/search/...) ----------------------------
+
+
+class GoalIn(BaseModel):
+    """A moving goal: the object ``id`` should end at ``position`` (orientation used only with
+    ``beta > 0``)."""
+
+    model_config = ConfigDict(extra="forbid")
+    id: int
+    position: Vec3
+    orientation: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
+
+
+class TaskIn(BaseModel):
+    """A pushing task (4.4.2, 4.7.3); the fields its ``kind`` needs (others must be omitted)."""
+
+    model_config = ConfigDict(extra="forbid")
+    kind: Literal["moving", "singulation", "grasping", "interactive_moving"]
+    goals: list[GoalIn] | None = Field(None, description="moving: goals of some objects.")
+    beta: float = Field(0.0, description="moving: weight of the orientation error (4.4.6).")
+    tau: float | None = Field(None, description="singulation: pairwise distance (m), 0.20.")
+    target_id: int | None = Field(None, description="grasping, interactive_moving: the target.")
+    goal: Vec3 | None = Field(None, description="interactive_moving: the target's goal (m).")
+
+    def to_domain(self) -> Any:
+        """The :mod:`sqmanip.planning.tasks` task; missing fields name ``task.<field>``."""
+        from sqmanip.errors import ValidationError
+        from sqmanip.planning import tasks
+
+        if self.kind == "moving":
+            if not self.goals:
+                raise ValidationError("task.goals: required for moving (at least one goal)")
+            goals = {}
+            for g in self.goals:
+                T = PoseIn(position=g.position, orientation=g.orientation).matrix()
+                goals[g.id] = T
+            return tasks.MovingTask(goals, self.beta)
+        if self.kind == "singulation":
+            return tasks.SingulationTask() if self.tau is None else tasks.SingulationTask(self.tau)
+        if self.target_id is None:
+            raise ValidationError(f"task.target_id: required for {self.kind}")
+        if self.kind == "grasping":
+            return tasks.GraspingTask(self.target_id)
+        if self.goal is None:
+            raise ValidationError("task.goal: required for interactive_moving")
+        return tasks.InteractiveMovingTask(self.target_id, np.asarray(self.goal))
+
+
+class MPCOptionsIn(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    num_sequences: int | None = Field(
+        None, ge=0, description="K sampled sequences (default 100; at most 16 with 'physics')."
+    )
+    horizon: int | None = Field(None, ge=0, description="Default: 1, or 3 for grasping.")
+    seed: int | None = None
+    dynamics_model: str = Field(
+        "sqpdnet", description="'sqpdnet', 'physics' (PyBullet, ~1 s per push) or a checkpoint."
+    )
+
+    def to_kwargs(self) -> dict[str, Any]:
+        return self.model_dump()
+
+
+class PlanBody(BaseModel):
+    """``POST /plan``: recognized objects (``/recognize`` output) + task + options."""
+
+    model_config = ConfigDict(extra="forbid")
+    objects: list[ObjectIn] = Field(min_length=1)
+    task: TaskIn
+    options: MPCOptionsIn = Field(default_factory=MPCOptionsIn)
+
+
+class ObjectPoseOut(BaseModel):
+    id: int
+    pose: PoseOut
+
+
+class PlanOut(BaseModel):
+    has_action: bool
+    action: list[float] | None = Field(description="(p_x, p_y, p_z, v_x, v_y, v_z) to execute.")
+    pushed_id: int | None
+    predicted_next: list[ObjectPoseOut]
+    cost: float | None = Field(description="Predicted terminal cost (null = no admissible push).")
+    current_cost: float | None
+    num_candidates: int
+    num_sampled: int
+    num_rejected_start: int
+    num_rejected_workspace: int
+    sequence: list[list[float]]
+    timings_ms: dict[str, float]
+    dynamics_model: str
+    solved: bool
+
+
+class MPCEpisodeBody(BaseModel):
+    """``POST /mpc/episodes``: a generated scenario (kind, index, seed) run in the simulator."""
+
+    model_config = ConfigDict(extra="forbid")
+    kind: Literal[
+        "moving", "singulation", "grasping_clutter", "grasping_large", "interactive_moving"
+    ]
+    index: int = Field(0, ge=0)
+    seed: int = 0
+    objects: Literal["recognition", "ground_truth"] = "recognition"
+    options: MPCOptionsIn = Field(default_factory=MPCOptionsIn)
+    max_steps: int | None = Field(None, ge=0, le=100)
+
+
+class SearchEpisodeBody(BaseModel):
+    """``POST /search/episodes``: a shelf scenario (given, or generated from n_objects/seed)."""
+
+    model_config = ConfigDict(extra="forbid")
+    scenario: dict[str, Any] | None = Field(
+        None, description="A ShelfScenario dict (as a result's 'scenario'); default: generate."
+    )
+    n_objects: int = Field(2, ge=0, le=12)
+    seed: int = 0
+    method: Literal["search_for_grasp", "search_and_grasp"] = "search_for_grasp"
+    shapes: Literal["oracle", "recognized"] = "oracle"
+    actions: Literal["both", "push", "pick_and_place"] = "both"
+    dynamics_model: str = Field("kinematic", description="'kinematic' or a dynamics model name.")
+    max_steps: int | None = Field(None, ge=0, le=50)
+    num_sequences: int | None = Field(None, ge=1, le=1000)
+    plan_seed: int = 0
+
+
+class EpisodeStartedOut(BaseModel):
+    id: str
+    status: str
+
+
+class EpisodeErrorOut(BaseModel):
+    status: int
+    code: str
+    detail: str
+
+
+class EpisodeOut(BaseModel):
+    id: str
+    kind: Literal["mpc", "search"]
+    status: Literal["running", "done", "failed"]
+    events: list[dict[str, Any]] = Field(description="Step events, oldest first (bounded).")
+    n_events: int = Field(description="Events received in total (incl. dropped ones).")
+    result: dict[str, Any] | None
+    error: EpisodeErrorOut | None
+    elapsed_s: float
+
+
+class SearchTargetIn(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    kind: Literal["cylinder", "box"] = "cylinder"
+    size: Vec3 = Field(description="Half extents (a1, a2, a3) (m); a1 = a2 for a cylinder.")
+
+
+class ShelfIn(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    front_x: float | None = None
+    depth: float | None = None
+    inner_width: float | None = None
+    inner_height: float | None = None
+    bottom_z: float | None = None
+    thickness: float | None = None
+
+
+class CameraIn(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    width: int = Field(ge=1, le=4096)
+    height: int = Field(ge=1, le=4096)
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    pose: PoseIn
+
+
+class SearchEvaluateBody(BaseModel):
+    """``POST /search/evaluate``: f and g maps of one shelf scene (C.2, C.3)."""
+
+    model_config = ConfigDict(extra="forbid")
+    objects: list[PartIn] = Field(description="The surrounding objects (target excluded).")
+    target: SearchTargetIn | None = None
+    shelf: ShelfIn | None = None
+    camera: CameraIn | None = None
+    target_visible: bool = False
+    target_pose: PoseIn | None = None
+    resolution: float | None = None
+    n_theta: int | None = Field(None, ge=1, le=72)
+
+
+class SearchEvaluateOut(BaseModel):
+    shape: list[int]
+    f: list[Any] = Field(description="Existence f over the grid, nested lists of `shape`.")
+    g: list[Any]
+    g_m: list[Any]
+    grid_xy: list[list[float]]
+    resolution: float
+    objective: float
+    timings_ms: dict[str, float]

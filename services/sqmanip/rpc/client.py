@@ -7,6 +7,9 @@ same exceptions (:mod:`sqmanip.errors`), so a domain package (e.g. search) can t
 :class:`RemoteSimulator` does the same for :class:`sqmanip.sim.Simulator`,
 :class:`RemoteGraspPlanner` for :class:`sqmanip.grasping.GraspPlanner` (``plan``,
 ``plan_detailed``) and :class:`RemoteDynamics` for ``SQPDNet.predict``.
+:class:`RemotePlanner` (``plan`` like ``PushMPC.plan``, ``run_episode``) and
+:class:`RemoteSearch` (``evaluate``, ``run_episode``) are the clients of the MPC planner and the
+shelf-search services.
 """
 
 from __future__ import annotations
@@ -19,6 +22,8 @@ from sqmanip.v1 import (
     dynamics_pb2_grpc,
     grasp_pb2_grpc,
     perception_pb2_grpc,
+    planner_pb2_grpc,
+    search_pb2_grpc,
     sim_pb2,
     sim_pb2_grpc,
 )
@@ -297,3 +302,60 @@ class RemoteDynamics(_BlockingClient):
         out, self.last_failed = convert.predict_response_from_proto(response)
         self.last_latency_ms = response.latency_ms
         return torch.from_numpy(out)
+
+
+class RemotePlanner(_BlockingClient):
+    """Blocking gRPC client of the Planner service.
+
+    ``plan(objects [(parts, id)], task, ...)`` returns the same
+    :class:`~sqmanip.planning.mpc.PlanResult` as ``PushMPC.plan``; ``run_episode(kind, ...)``
+    yields the episode's events as dicts (:func:`convert.episode_event_from_proto`), the last
+    one with ``result``."""
+
+    _stub_class = planner_pb2_grpc.PlannerStub
+
+    def plan(
+        self,
+        objects,
+        task,
+        *,
+        num_sequences: int | None = None,
+        horizon: int | None = None,
+        seed: int | None = None,
+        dynamics_model: str = "",
+        timeout: float | None = None,
+        request_id: str | None = None,
+    ):
+        msg = convert.plan_request_to_proto(
+            objects, task, num_sequences=num_sequences, horizon=horizon, seed=seed,
+            dynamics_model=dynamics_model,
+        )  # fmt: skip
+        return convert.plan_response_from_proto(self._call("Plan", msg, timeout, request_id))
+
+    def run_episode(self, kind: str, index: int = 0, seed: int = 0, *, timeout=None, **kw):
+        msg = convert.episode_request_to_proto(kind, index, seed, **kw)
+        try:
+            for ev in self._stub.RunEpisode(msg, timeout=timeout or self.timeout):
+                yield convert.episode_event_from_proto(ev)
+        except grpc.RpcError as err:
+            raise error_from_status(err.code(), err.details() or "") from None
+
+
+class RemoteSearch(_BlockingClient):
+    """Blocking gRPC client of the Search service: ``evaluate(objects, target, ...)`` ->
+    :class:`convert.EvaluateResult` (f, g, g_m maps of the grid shape); ``run_episode(...)``
+    yields event dicts, the last one with ``result``."""
+
+    _stub_class = search_pb2_grpc.SearchStub
+
+    def evaluate(self, objects, target=None, shelf=None, camera=None, *, timeout=None, **kw):
+        msg = convert.evaluate_request_to_proto(objects, target, shelf, camera, **kw)
+        return convert.evaluate_response_from_proto(self._call("Evaluate", msg, timeout, None))
+
+    def run_episode(self, scenario=None, *, timeout=None, **kw):
+        msg = convert.search_episode_request_to_proto(scenario, **kw)
+        try:
+            for ev in self._stub.RunEpisode(msg, timeout=timeout or self.timeout):
+                yield convert.search_event_from_proto(ev)
+        except grpc.RpcError as err:
+            raise error_from_status(err.code(), err.details() or "") from None

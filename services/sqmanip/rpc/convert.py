@@ -1188,3 +1188,691 @@ def predict_response_from_proto(
     if msg.failed:
         failed = _plane(msg.failed, np.dtype(np.uint8), (k,), "failed").astype(bool)
     return poses, failed
+
+
+# --- MPC planner (planner.proto) ----------------------------------------------------------------
+#
+# Objects travel as RecognizedObject (parts + id); the domain side is ``PushMPC.plan(objects
+# [(parts, id)], task, rng)`` with a :mod:`sqmanip.planning.tasks` task and a
+# :class:`~sqmanip.planning.mpc.PlanResult`. Episode events map
+# :class:`sqmanip.planning.episode.StepEvent` / ``EpisodeResult`` (decoded to JSON-ready dicts,
+# which is what the gateway keeps).
+
+from sqmanip.planning.mpc import PlanResult as MPCPlanResult  # noqa: E402
+from sqmanip.planning.tasks import (  # noqa: E402
+    GraspingTask,
+    InteractiveMovingTask,
+    MovingTask,
+    SingulationTask,
+)
+from sqmanip.v1 import planner_pb2 as planner_pb  # noqa: E402
+from sqmanip.v1 import search_pb2 as search_pb  # noqa: E402
+
+MAX_MPC_SEQUENCES = 100_000
+EPISODE_OBJECTS = ("recognition", "ground_truth")
+
+
+def task_to_proto(task: Any) -> planner_pb.PlanTask:
+    """A :mod:`sqmanip.planning.tasks` task -> PlanTask."""
+    if isinstance(task, MovingTask):
+        goals = [planner_pb.MovingGoal(object_id=int(k), goal=pose_to_proto(T))
+                 for k, T in task.goals.items()]  # fmt: skip
+        return planner_pb.PlanTask(moving=planner_pb.MovingTask(goals=goals, beta=task.beta))
+    if isinstance(task, SingulationTask):
+        return planner_pb.PlanTask(singulation=planner_pb.SingulationTask(tau=task.tau))
+    if isinstance(task, GraspingTask):
+        return planner_pb.PlanTask(grasping=planner_pb.GraspingTask(target_id=task.target_id))
+    if isinstance(task, InteractiveMovingTask):
+        msg = planner_pb.InteractiveMovingTask(
+            target_id=task.target_id, goal=vec3_to_proto(task.goal)
+        )
+        return planner_pb.PlanTask(interactive_moving=msg)
+    raise ValidationError(f"task: expected a planning task, got {type(task).__name__}")
+
+
+def task_from_proto(msg: planner_pb.PlanTask) -> Any:
+    """PlanTask -> task; a missing task or bad numbers raise ValidationError naming ``task...``."""
+    which = msg.WhichOneof("task")
+    if which is None:
+        raise ValidationError(
+            "task: expected one of moving, singulation, grasping, interactive_moving"
+        )
+    if which == "moving":
+        goals: dict[int, np.ndarray] = {}
+        for i, g in enumerate(msg.moving.goals):
+            if not g.HasField("goal"):
+                raise ValidationError(f"task.goals[{i}].goal: required")
+            p, q = g.goal.position, g.goal.orientation
+            if not np.isfinite([p.x, p.y, p.z, q.x, q.y, q.z, q.w]).all():
+                raise ValidationError(f"task.goals[{g.object_id}]: expected finite numbers")
+            if int(g.object_id) in goals:
+                raise ValidationError(f"task.goals: object id {g.object_id} given twice")
+            goals[int(g.object_id)] = pose_from_proto(g.goal)
+        return MovingTask(goals, float(msg.moving.beta))
+    if which == "singulation":
+        s = msg.singulation
+        return SingulationTask(float(s.tau)) if s.HasField("tau") else SingulationTask()
+    if which == "grasping":
+        return GraspingTask(int(msg.grasping.target_id))
+    im = msg.interactive_moving
+    if not im.HasField("goal"):
+        raise ValidationError("task.goal: required for interactive moving")
+    return InteractiveMovingTask(int(im.target_id), np.asarray(vec3_from_proto(im.goal)))
+
+
+@dataclasses.dataclass(frozen=True)
+class MPCArgs:
+    """Decoded MPCOptions: None = the planner's default."""
+
+    num_sequences: int | None = None
+    horizon: int | None = None
+    seed: int | None = None
+    dynamics_model: str = "sqpdnet"
+
+
+def mpc_options_to_proto(
+    num_sequences: int | None = None,
+    horizon: int | None = None,
+    seed: int | None = None,
+    dynamics_model: str = "",
+) -> planner_pb.MPCOptions:
+    msg = planner_pb.MPCOptions(dynamics_model=dynamics_model or "")
+    if num_sequences is not None:
+        msg.num_sequences = int(num_sequences)
+    if horizon is not None:
+        msg.horizon = int(horizon)
+    if seed is not None:
+        msg.seed = int(seed)
+    return msg
+
+
+def mpc_options_from_proto(msg: planner_pb.MPCOptions) -> MPCArgs:
+    """MPCOptions -> :class:`MPCArgs`; K = 0, K too large, horizon outside [1, 10] are
+    ValidationErrors naming ``options.<field>``."""
+    k = int(msg.num_sequences) if msg.HasField("num_sequences") else None
+    if k is not None and not 1 <= k <= MAX_MPC_SEQUENCES:
+        raise ValidationError(
+            f"options.num_sequences: must be in [1, {MAX_MPC_SEQUENCES}], got {k}"
+        )
+    h = int(msg.horizon) if msg.HasField("horizon") else None
+    if h is not None and not 1 <= h <= 10:
+        raise ValidationError(f"options.horizon: must be in [1, 10], got {h}")
+    seed = int(msg.seed) if msg.HasField("seed") else None
+    return MPCArgs(k, h, seed, msg.dynamics_model or "sqpdnet")
+
+
+@dataclasses.dataclass(frozen=True)
+class PlanArgs:
+    """A decoded PlanRequest: the arguments of ``PushMPC.plan`` and the options."""
+
+    objects: list[tuple[list[Superquadric], int]]
+    task: Any
+    options: MPCArgs
+
+
+def plan_request_to_proto(
+    objects: Sequence[tuple[Sequence[Superquadric], int]],
+    task: Any,
+    **options: Any,
+) -> planner_pb.PlanRequest:
+    """``objects [(parts, id)]``, a task and :func:`mpc_options_to_proto` keywords -> PlanRequest."""
+    return planner_pb.PlanRequest(
+        objects=[_parts_object(i, parts) for parts, i in objects],
+        task=task_to_proto(task),
+        options=mpc_options_to_proto(**options),
+    )
+
+
+def plan_request_from_proto(msg: planner_pb.PlanRequest) -> PlanArgs:
+    """PlanRequest -> :class:`PlanArgs`; empty or duplicate objects, non-finite parts, a missing
+    task or bad options raise ValidationError naming the field."""
+    if len(msg.objects) == 0:
+        raise ValidationError("objects: expected at least one object")
+    objects: list[tuple[list[Superquadric], int]] = []
+    seen: set[int] = set()
+    for i, o in enumerate(msg.objects):
+        if len(o.parts) == 0:
+            raise ValidationError(f"objects[{i}].parts: expected at least one part")
+        if int(o.id) in seen:
+            raise ValidationError(f"objects[{i}].id: duplicate object id {o.id}")
+        seen.add(int(o.id))
+        parts = [_finite_superquadric(p, f"objects[{i}].parts[{j}]") for j, p in enumerate(o.parts)]
+        objects.append((parts, int(o.id)))
+    if not msg.HasField("task"):
+        raise ValidationError("task: required")
+    return PlanArgs(objects, task_from_proto(msg.task), mpc_options_from_proto(msg.options))
+
+
+def plan_response_to_proto(
+    result: MPCPlanResult, dynamics_model: str = ""
+) -> planner_pb.PlanResponse:
+    """A :class:`~sqmanip.planning.mpc.PlanResult` -> PlanResponse."""
+    msg = planner_pb.PlanResponse(
+        has_action=result.action is not None,
+        action=[] if result.action is None else [float(v) for v in result.action],
+        predicted_next=[
+            planner_pb.ObjectPose(object_id=int(i), pose=pose_to_proto(T))
+            for i, T in zip(result.object_ids, np.asarray(result.predicted_next), strict=True)
+        ],
+        cost=float(result.cost),
+        current_cost=float(result.current_cost),
+        num_candidates=int(result.n_candidates),
+        num_sampled=int(result.n_sampled),
+        num_rejected_start=int(result.n_rejected_start),
+        num_rejected_workspace=int(result.n_rejected_workspace),
+        sequence=[float(v) for v in np.asarray(result.sequence, dtype=np.float64).reshape(-1)],
+        timings_ms={k: float(v) for k, v in result.timings_ms.items()},
+        dynamics_model=dynamics_model,
+        solved=bool(result.solved),
+    )
+    if result.pushed_id is not None:
+        msg.pushed_id = int(result.pushed_id)
+    return msg
+
+
+def plan_response_from_proto(msg: planner_pb.PlanResponse) -> MPCPlanResult:
+    """PlanResponse -> :class:`~sqmanip.planning.mpc.PlanResult` (float64 poses)."""
+    action = np.asarray(msg.action, dtype=np.float64) if msg.has_action else None
+    if action is not None and action.shape != (6,):
+        raise ValidationError(f"action: expected 6 values, got {action.shape[0]}")
+    seq = np.asarray(msg.sequence, dtype=np.float64)
+    if seq.size % 6:
+        raise ValidationError(f"sequence: expected H x 6 values, got {seq.size}")
+    ids = tuple(int(p.object_id) for p in msg.predicted_next)
+    nxt = (
+        np.stack([pose_from_proto(p.pose) for p in msg.predicted_next])
+        if ids
+        else np.zeros((0, 4, 4))
+    )
+    return MPCPlanResult(
+        action=action,
+        predicted_next=nxt,
+        cost=float(msg.cost),
+        current_cost=float(msg.current_cost),
+        n_candidates=int(msg.num_candidates),
+        timings_ms=dict(msg.timings_ms),
+        sequence=seq.reshape(-1, 6),
+        pushed_id=int(msg.pushed_id) if msg.HasField("pushed_id") else None,
+        object_ids=ids,
+        n_sampled=int(msg.num_sampled),
+        n_rejected_start=int(msg.num_rejected_start),
+        n_rejected_workspace=int(msg.num_rejected_workspace),
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class EpisodeArgs:
+    """A decoded EpisodeRequest."""
+
+    kind: str
+    index: int
+    seed: int
+    objects: str
+    options: MPCArgs
+    max_steps: int
+
+
+def episode_request_to_proto(
+    kind: str,
+    index: int = 0,
+    seed: int = 0,
+    *,
+    objects: str = "recognition",
+    max_steps: int | None = None,
+    options: Mapping[str, Any] | None = None,
+) -> planner_pb.EpisodeRequest:
+    """``options``: :func:`mpc_options_to_proto` keywords (its ``seed`` seeds the planner;
+    ``seed`` here picks the scenario)."""
+    msg = planner_pb.EpisodeRequest(
+        kind=kind, index=int(index), seed=int(seed), objects=objects,
+        options=mpc_options_to_proto(**dict(options or {})),
+    )  # fmt: skip
+    if max_steps is not None:
+        msg.max_steps = int(max_steps)
+    return msg
+
+
+def episode_request_from_proto(msg: planner_pb.EpisodeRequest) -> EpisodeArgs:
+    from sqmanip.planning.scenarios import SCENARIO_KINDS
+
+    if msg.kind not in SCENARIO_KINDS:
+        raise ValidationError(f"kind: must be one of {list(SCENARIO_KINDS)}, got {msg.kind!r}")
+    objects = msg.objects or "recognition"
+    if objects not in EPISODE_OBJECTS:
+        raise ValidationError(f"objects: must be one of {list(EPISODE_OBJECTS)}, got {objects!r}")
+    steps = int(msg.max_steps) if msg.HasField("max_steps") else 10
+    if not 0 <= steps <= 100:
+        raise ValidationError(f"max_steps: must be in [0, 100], got {steps}")
+    return EpisodeArgs(msg.kind, int(msg.index), int(msg.seed), objects,
+                       mpc_options_from_proto(msg.options), steps)  # fmt: skip
+
+
+def _xyzyaw_list(poses: Mapping[int, Sequence[float]]) -> list[planner_pb.ObjectXYZYaw]:
+    return [
+        planner_pb.ObjectXYZYaw(object_id=int(k), x=v[0], y=v[1], z=v[2], yaw=v[3])
+        for k, v in poses.items()
+    ]
+
+
+def episode_event_to_proto(event: Any) -> planner_pb.EpisodeEvent:
+    """A :class:`sqmanip.planning.episode.StepEvent` -> EpisodeEvent."""
+    msg = planner_pb.EpisodeEvent(
+        step=int(event.step),
+        status=event.status,
+        message=event.message,
+        num_points=int(event.n_points),
+        recognized_ids=[int(i) for i in event.recognized_ids],
+        missing_ids=[int(i) for i in event.missing_ids],
+        action=[] if event.action is None else [float(v) for v in event.action],
+        predicted=_xyzyaw_list(event.predicted),
+        recognized=_xyzyaw_list(event.recognized),
+        observed=_xyzyaw_list(event.observed),
+        cost=float(event.cost),
+        current_cost=float(event.current_cost),
+        metric_after=float(event.metric_after),
+        num_candidates=int(event.n_candidates),
+        timings_ms={k: float(v) for k, v in event.timings_ms.items()},
+    )
+    if event.pushed_id is not None:
+        msg.pushed_id = int(event.pushed_id)
+    return msg
+
+
+def episode_result_to_proto(result: Any) -> planner_pb.EpisodeEvent:
+    """An ``EpisodeResult`` -> the last EpisodeEvent (status ``result``)."""
+    r = planner_pb.EpisodeResult(
+        kind=result.kind, index=int(result.index), success=bool(result.success),
+        steps=int(result.steps), reason=result.reason, metric=float(result.metric),
+        wall_s=float(result.wall_s),
+    )  # fmt: skip
+    if result.grasp_found is not None:
+        r.grasp_found = bool(result.grasp_found)
+    return planner_pb.EpisodeEvent(
+        step=int(result.steps), status="result", message=result.reason, result=r
+    )
+
+
+def _finite_or_none(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
+
+
+def episode_event_from_proto(msg: planner_pb.EpisodeEvent) -> dict[str, Any]:
+    """EpisodeEvent -> a JSON-ready dict (non-finite costs -> None); the last event has
+    ``result``."""
+    if msg.HasField("result"):
+        r = msg.result
+        return {
+            "status": "result",
+            "result": {
+                "kind": r.kind,
+                "index": int(r.index),
+                "success": bool(r.success),
+                "steps": int(r.steps),
+                "reason": r.reason,
+                "grasp_found": bool(r.grasp_found) if r.HasField("grasp_found") else None,
+                "metric": _finite_or_none(r.metric),
+                "wall_s": float(r.wall_s),
+            },  # fmt: skip
+        }
+
+    def poses(items) -> dict[str, list[float]]:
+        return {str(p.object_id): [p.x, p.y, p.z, p.yaw] for p in items}
+
+    return {
+        "step": int(msg.step),
+        "status": msg.status,
+        "message": msg.message,
+        "n_points": int(msg.num_points),
+        "recognized_ids": list(msg.recognized_ids),
+        "missing_ids": list(msg.missing_ids),
+        "action": list(msg.action) or None,
+        "pushed_id": int(msg.pushed_id) if msg.HasField("pushed_id") else None,
+        "predicted": poses(msg.predicted),
+        "recognized": poses(msg.recognized),
+        "observed": poses(msg.observed),
+        "cost": _finite_or_none(msg.cost),
+        "current_cost": _finite_or_none(msg.current_cost),
+        "metric_after": _finite_or_none(msg.metric_after),
+        "n_candidates": int(msg.num_candidates),
+        "timings_ms": dict(msg.timings_ms),
+    }
+
+
+# --- shelf search (search.proto) ----------------------------------------------------------------
+#
+# Maps over the pose grid are float32 planes with the grid shape; the domain side is
+# :mod:`sqmanip.search` (ShelfSpec, TargetSpec, PinholeCamera, Maps) and its episode
+# ``StepEvent`` / ``EpisodeResult``.
+
+SEARCH_METHODS = ("search_for_grasp", "search_and_grasp")
+SEARCH_SHAPES = ("oracle", "recognized")
+SEARCH_ACTIONS = ("both", "push", "pick_and_place")
+SHELF_FIELDS = ("front_x", "depth", "inner_width", "inner_height", "bottom_z", "thickness")
+
+
+def search_target_to_proto(target: Any) -> search_pb.SearchTarget:
+    return search_pb.SearchTarget(kind=target.kind, size=vec3_to_proto(target.size))
+
+
+def search_target_from_proto(msg: search_pb.SearchTarget | None) -> Any:
+    """SearchTarget -> ``TargetSpec`` (unset = the scenarios' red cylinder)."""
+    from sqmanip.search.scenarios import TARGET_HEIGHT, TARGET_RADIUS
+    from sqmanip.search.shelf import TargetSpec
+
+    if msg is None:
+        return TargetSpec.cylinder(TARGET_RADIUS, TARGET_HEIGHT)
+    size = vec3_from_proto(msg.size)
+    try:
+        return TargetSpec(msg.kind or "cylinder", size)
+    except ValidationError as exc:
+        raise ValidationError(field_message("target", exc.message)) from None
+
+
+def shelf_to_proto(shelf: Any) -> search_pb.ShelfGeometry:
+    return search_pb.ShelfGeometry(**{f: float(getattr(shelf, f)) for f in SHELF_FIELDS})
+
+
+def shelf_from_proto(msg: search_pb.ShelfGeometry | None) -> Any:
+    from sqmanip.search.shelf import ShelfSpec
+
+    if msg is None:
+        return ShelfSpec()
+    kw = {f: float(getattr(msg, f)) for f in SHELF_FIELDS if msg.HasField(f)}
+    for k, v in kw.items():
+        if not np.isfinite(v):
+            raise ValidationError(f"shelf.{k}: expected a finite number")
+    try:
+        return ShelfSpec(**kw)
+    except (ValidationError, ValueError) as exc:
+        raise ValidationError(field_message("shelf", str(exc))) from None
+
+
+def camera_to_proto(camera: Any) -> search_pb.PinholeCamera:
+    return search_pb.PinholeCamera(
+        width=int(camera.width), height=int(camera.height), fx=float(camera.fx),
+        fy=float(camera.fy), cx=float(camera.cx), cy=float(camera.cy),
+        pose=pose_to_proto(np.asarray(camera.pose)),
+    )  # fmt: skip
+
+
+def camera_from_proto(msg: search_pb.PinholeCamera | None, shelf: Any) -> Any:
+    """PinholeCamera -> ``geometry.PinholeCamera`` (unset = ``shelf.camera()``)."""
+    from sqmanip.geometry import PinholeCamera
+
+    if msg is None:
+        return shelf.camera()
+    if not 1 <= msg.width <= 4096 or not 1 <= msg.height <= 4096:
+        raise ValidationError(
+            f"camera: width and height must be in [1, 4096], got {msg.width} x {msg.height}"
+        )
+    vals = [msg.fx, msg.fy, msg.cx, msg.cy]
+    if not np.isfinite(vals).all() or msg.fx <= 0 or msg.fy <= 0:
+        raise ValidationError("camera: fx, fy must be finite and > 0, cx, cy finite")
+    if not msg.HasField("pose"):
+        raise ValidationError("camera.pose: required (camera to world, optical frame)")
+    pose = pose_from_proto(msg.pose)
+    return PinholeCamera(fx=msg.fx, fy=msg.fy, cx=msg.cx, cy=msg.cy, width=int(msg.width),
+                         height=int(msg.height), pose=pose)  # fmt: skip
+
+
+@dataclasses.dataclass(frozen=True)
+class EvaluateArgs:
+    """A decoded EvaluateRequest."""
+
+    objects: list[Superquadric]
+    target: Any
+    shelf: Any
+    camera: Any
+    target_visible: bool
+    target_pose: np.ndarray | None
+    resolution: float
+    n_theta: int
+
+
+def evaluate_request_to_proto(
+    objects: Sequence[Superquadric],
+    target: Any = None,
+    shelf: Any = None,
+    camera: Any = None,
+    *,
+    target_visible: bool = False,
+    target_pose: np.ndarray | None = None,
+    resolution: float | None = None,
+    n_theta: int | None = None,
+) -> search_pb.EvaluateRequest:
+    msg = search_pb.EvaluateRequest(
+        objects=[superquadric_to_proto(o) for o in objects], target_visible=bool(target_visible)
+    )
+    if target is not None:
+        msg.target.CopyFrom(search_target_to_proto(target))
+    if shelf is not None:
+        msg.shelf.CopyFrom(shelf_to_proto(shelf))
+    if camera is not None:
+        msg.camera.CopyFrom(camera_to_proto(camera))
+    if target_pose is not None:
+        msg.target_pose.CopyFrom(pose_to_proto(np.asarray(target_pose)))
+    if resolution is not None:
+        msg.resolution = float(resolution)
+    if n_theta is not None:
+        msg.n_theta = int(n_theta)
+    return msg
+
+
+def evaluate_request_from_proto(msg: search_pb.EvaluateRequest) -> EvaluateArgs:
+    """EvaluateRequest -> :class:`EvaluateArgs`; errors name the field."""
+    objects = [_finite_superquadric(o, f"objects[{i}]") for i, o in enumerate(msg.objects)]
+    target = search_target_from_proto(msg.target if msg.HasField("target") else None)
+    shelf = shelf_from_proto(msg.shelf if msg.HasField("shelf") else None)
+    camera = camera_from_proto(msg.camera if msg.HasField("camera") else None, shelf)
+    pose = None
+    if msg.target_visible:
+        pose = _required_pose(msg, "target_pose")
+    res = float(msg.resolution) if msg.HasField("resolution") else 0.02
+    if not (np.isfinite(res) and 0.005 <= res <= 0.2):
+        raise ValidationError(f"resolution: must be in [0.005, 0.2] m, got {res}")
+    n_theta = int(msg.n_theta) if msg.HasField("n_theta") else 8
+    if not 1 <= n_theta <= 72:
+        raise ValidationError(f"n_theta: must be in [1, 72], got {n_theta}")
+    return EvaluateArgs(objects, target, shelf, camera, bool(msg.target_visible), pose, res,
+                        n_theta)  # fmt: skip
+
+
+@dataclasses.dataclass(frozen=True)
+class EvaluateResult:
+    """f, g and g_m over the pose grid, each of the grid's ``shape``."""
+
+    shape: tuple[int, ...]
+    f: np.ndarray
+    g: np.ndarray
+    g_m: np.ndarray
+    grid_xy: np.ndarray
+    """(P, 2) grid positions."""
+    resolution: float
+    objective: float
+    timings_ms: dict[str, float]
+
+
+def evaluate_response_to_proto(result: EvaluateResult) -> search_pb.EvaluateResponse:
+    P = int(np.prod(result.shape))
+    planes = {}
+    for name in ("f", "g", "g_m"):
+        a = np.asarray(getattr(result, name), dtype=F32).reshape(-1)
+        if a.size != P:
+            raise ValidationError(
+                f"{name}: expected {P} values (shape {result.shape}), got {a.size}"
+            )
+        planes[name] = a.tobytes()
+    xy = np.asarray(result.grid_xy, dtype=F32)
+    if xy.shape != (P, 2):
+        raise ValidationError(f"grid_xy: expected shape ({P}, 2), got {xy.shape}")
+    return search_pb.EvaluateResponse(
+        shape=[int(s) for s in result.shape], grid_xy=xy.tobytes(),
+        resolution=float(result.resolution), objective=float(result.objective),
+        timings_ms={k: float(v) for k, v in result.timings_ms.items()}, **planes,
+    )  # fmt: skip
+
+
+def evaluate_response_from_proto(msg: search_pb.EvaluateResponse) -> EvaluateResult:
+    shape = tuple(int(s) for s in msg.shape)
+    P = int(np.prod(shape)) if shape else 0
+    maps = {n: _plane(getattr(msg, n), F32, shape, n).astype(np.float32) for n in ("f", "g", "g_m")}
+    xy = _plane(msg.grid_xy, F32, (P, 2), "grid_xy").astype(np.float32)
+    return EvaluateResult(shape, maps["f"], maps["g"], maps["g_m"], xy, float(msg.resolution),
+                          float(msg.objective), dict(msg.timings_ms))  # fmt: skip
+
+
+@dataclasses.dataclass(frozen=True)
+class SearchEpisodeArgs:
+    """A decoded SearchEpisodeRequest."""
+
+    scenario: dict[str, Any] | None
+    """``ShelfScenario.to_dict()`` or None (generate from ``n_objects``, ``seed``)."""
+    n_objects: int
+    seed: int
+    method: str
+    shapes: str
+    actions: str
+    dynamics_model: str
+    max_steps: int | None
+    num_sequences: int | None
+    plan_seed: int
+
+
+def search_episode_request_to_proto(
+    scenario: Any = None,
+    *,
+    n_objects: int = 2,
+    seed: int = 0,
+    method: str = "search_for_grasp",
+    shapes: str = "oracle",
+    actions: str = "both",
+    dynamics_model: str = "kinematic",
+    max_steps: int | None = None,
+    num_sequences: int | None = None,
+    plan_seed: int = 0,
+) -> search_pb.SearchEpisodeRequest:
+    """``scenario`` is a ``ShelfScenario``, its dict, or None (generated from n_objects, seed)."""
+    if scenario is not None and not isinstance(scenario, Mapping):
+        scenario = scenario.to_dict()
+    msg = search_pb.SearchEpisodeRequest(
+        scenario_json=json.dumps(scenario) if scenario is not None else "",
+        n_objects=int(n_objects), seed=int(seed), method=method, shapes=shapes, actions=actions,
+        dynamics_model=dynamics_model, plan_seed=int(plan_seed),
+    )  # fmt: skip
+    if max_steps is not None:
+        msg.max_steps = int(max_steps)
+    if num_sequences is not None:
+        msg.num_sequences = int(num_sequences)
+    return msg
+
+
+def _choice(value: str, default: str, allowed: tuple[str, ...], field: str) -> str:
+    value = value or default
+    if value not in allowed:
+        raise ValidationError(f"{field}: must be one of {list(allowed)}, got {value!r}")
+    return value
+
+
+def search_episode_request_from_proto(msg: search_pb.SearchEpisodeRequest) -> SearchEpisodeArgs:
+    scenario = None
+    if msg.scenario_json:
+        try:
+            scenario = json.loads(msg.scenario_json)
+        except json.JSONDecodeError as exc:
+            raise ValidationError(f"scenario_json: not valid JSON ({exc})") from None
+        if not isinstance(scenario, dict) or not {"n_objects", "seed", "scene", "target"} <= set(
+            scenario
+        ):
+            raise ValidationError(
+                "scenario_json: expected a ShelfScenario dict (n_objects, seed, scene, target)"
+            )
+    elif not 0 <= msg.n_objects <= 12:
+        raise ValidationError(f"n_objects: must be in [0, 12], got {msg.n_objects}")
+    model = msg.dynamics_model or "kinematic"
+    if model != "kinematic" and not re.match(r"^[A-Za-z0-9_][A-Za-z0-9_.-]{0,63}$", model):
+        raise ValidationError(f"dynamics_model: not a model name: {model!r}")
+    steps = int(msg.max_steps) if msg.HasField("max_steps") else None
+    if steps is not None and steps > 50:
+        raise ValidationError(f"max_steps: must be in [0, 50], got {steps}")
+    k = int(msg.num_sequences) if msg.HasField("num_sequences") else None
+    if k is not None and not 1 <= k <= 1000:
+        raise ValidationError(f"num_sequences: must be in [1, 1000], got {k}")
+    return SearchEpisodeArgs(
+        scenario, int(msg.n_objects), int(msg.seed),
+        _choice(msg.method, "search_for_grasp", SEARCH_METHODS, "method"),
+        _choice(msg.shapes, "oracle", SEARCH_SHAPES, "shapes"),
+        _choice(msg.actions, "both", SEARCH_ACTIONS, "actions"),
+        model, steps, k, int(msg.plan_seed),
+    )  # fmt: skip
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    if isinstance(value, Mapping):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_jsonable(v) for v in value]
+    return value
+
+
+def search_event_to_proto(event: Any) -> search_pb.SearchEvent:
+    """A :class:`sqmanip.search.episode.StepEvent` -> SearchEvent (maps and images dropped)."""
+    return search_pb.SearchEvent(
+        step=int(event.step), action=event.action,
+        params_json=json.dumps(_jsonable(event.params)), f_sum=float(event.f_sum),
+        fg_sum=float(event.fg_sum), visible=bool(event.visible),
+        graspable=bool(event.graspable), target_pixels=int(event.target_pixels),
+        executed=bool(event.executed), message=event.message,
+        timings_ms={k: float(v) for k, v in event.timings_ms.items()},
+    )  # fmt: skip
+
+
+def search_result_to_proto(
+    result: Any, *, wall_s: float = 0.0, scenario_json: str = ""
+) -> search_pb.SearchEvent:
+    """A search ``EpisodeResult`` -> the last SearchEvent (action ``result``)."""
+    r = search_pb.SearchResult(
+        found=bool(result.found), grasped=bool(result.grasped), steps=int(result.steps),
+        reason=result.reason, wall_s=float(wall_s), scenario_json=scenario_json,
+    )  # fmt: skip
+    if result.find_steps is not None:
+        r.find_steps = int(result.find_steps)
+    if result.grasp_steps is not None:
+        r.grasp_steps = int(result.grasp_steps)
+    return search_pb.SearchEvent(
+        step=int(result.steps), action="result", message=result.reason, result=r
+    )
+
+
+def search_event_from_proto(msg: search_pb.SearchEvent) -> dict[str, Any]:
+    """SearchEvent -> a JSON-ready dict; the last event has ``result``."""
+    if msg.HasField("result"):
+        r = msg.result
+        return {
+            "action": "result",
+            "result": {
+                "found": r.found,
+                "grasped": r.grasped,
+                "find_steps": int(r.find_steps) if r.HasField("find_steps") else None,
+                "grasp_steps": int(r.grasp_steps) if r.HasField("grasp_steps") else None,
+                "steps": int(r.steps),
+                "reason": r.reason,
+                "wall_s": float(r.wall_s),
+                "scenario": json.loads(r.scenario_json) if r.scenario_json else None,
+            },  # fmt: skip
+        }
+    try:
+        params = json.loads(msg.params_json) if msg.params_json else {}
+    except json.JSONDecodeError:
+        params = {}
+    return {
+        "step": int(msg.step), "action": msg.action, "params": params,
+        "f_sum": float(msg.f_sum), "fg_sum": float(msg.fg_sum), "visible": msg.visible,
+        "graspable": msg.graspable, "target_pixels": int(msg.target_pixels),
+        "executed": msg.executed, "message": msg.message, "timings_ms": dict(msg.timings_ms),
+    }  # fmt: skip
