@@ -1,9 +1,8 @@
 """Pushing dynamics benchmarks (Ch. 4.6, 4.7): prediction throughput and the equivariance study.
 
-Run: ``python -m benchmarks.dynamics [--quick] [--parts throughput equivariance]``. Each part
-prints its table and is stored under its name in ``benchmarks/results/dynamics.json`` (parts not
-run keep their previous entries, so parts can be re-run one at a time). New parts (the known /
-unknown test metrics of Tables 4.2 and 4.4) register in ``PARTS``.
+Run: ``python -m benchmarks.dynamics [--quick] [--parts throughput equivariance metrics]``.
+Each part prints its table and is stored under its name in ``benchmarks/results/dynamics.json``
+(parts not run keep their previous entries, so parts can be re-run one at a time).
 
 - ``throughput``: latency of ``SQPDNet.predict`` for 100 actions x 4 objects with the B.3 widths
   (float32, CPU) at 1 and 2 torch threads: the shared-scene fast path, the reference path (scene
@@ -13,6 +12,16 @@ unknown test metrics of Tables 4.2 and 4.4) register in ``PARTS``.
   test on 9 random SE(2) transforms of it (scene, action, next scene and observed cloud);
   10 tuples (3 with --quick), so 90 tests. SQPD-Net (equivariant, shape alignment) vs the
   world-frame network of 4.7.1 without augmentation. Visible and full flow error in cm.
+- ``metrics`` (4.6.2 / 4.7.1, Tables 4.2 and 4.4): the shipped checkpoints (``--models``,
+  default ``models/sqpdnet`` = GT-SQPD-Net and ``models/sqpdnet_baseline`` = the 4.7.1
+  world-frame network trained with SE(2) augmentation), loaded as the dynamics service loads
+  them (``weights_only=True``), on the ``test`` (known objects) and ``unknown`` splits of
+  ``--data`` (default ``data/pushing``, see ``sqmanip.dynamics.generate``): pose error (cm,
+  deg), visible and full flow RMSE (cm), 2D mask IoU (rendered id image, the split's camera)
+  and 3D mask IoU (voxels), printed beside the thesis numbers. Reference rows: "no motion"
+  (``T' = T``) and the physics baseline of 4.7.4 with ground-truth shapes (PyBullet re-simulation,
+  ~1 s per tuple, so on the first ``--physics-tuples`` tuples of each split, with the learned
+  models on the same tuples). R-SQPD-Net (shapes from the perception service) is not measured.
 """
 
 from __future__ import annotations
@@ -217,9 +226,182 @@ def part_equivariance(args: argparse.Namespace) -> dict[str, Any]:
             "preset": preset}  # fmt: skip
 
 
+# --- part: test metrics (4.6.2 Table 4.2, 4.7.1 Table 4.4) ---------------------------------------
+
+# Table 4.2 (known | unknown): visible flow, full flow (cm), 2D IoU, 3D IoU.
+THESIS_T42: dict[str, tuple[tuple[float | None, ...], tuple[float | None, ...]]] = {
+    "2DFlow": ((2.179, None, None, None), (2.180, None, None, None)),
+    "SE3-Net": ((1.631, None, None, None), (1.701, None, None, None)),
+    "SE3Pose-Net": ((1.639, None, None, None), (1.712, None, None, None)),
+    "3DFlow": ((1.818, 1.859, 0.747, 0.699), (1.697, 1.719, 0.755, 0.698)),
+    "DSR-Net": ((1.325, 1.331, 0.720, 0.705), (1.531, 1.524, 0.665, 0.632)),
+    "R-SQPD-Net": ((0.575, 0.610, 0.844, 0.798), (0.710, 0.726, 0.834, 0.781)),
+    "GT-SQPD-Net": ((0.519, 0.379, 0.903, 0.888), (0.638, 0.485, 0.888, 0.868)),
+}
+# Table 4.4 (known test set of the 4.7.1 ablation): visible, full flow (cm), pos. (cm), ori. (deg).
+THESIS_T44: dict[str, tuple[float, float, float, float]] = {
+    "SQPDNet": (1.327, 1.083, 1.270, 10.427),
+    "SQPDNet + Shape": (1.195, 0.995, 1.175, 7.960),
+    "SQPDNet + SE(2)": (1.183, 0.950, 1.158, 8.846),
+    "SQPDNet + SE(2) + Shape": (0.712, 0.550, 0.676, 7.606),
+}
+
+
+def _method_label(config: SQPDNetConfig) -> tuple[str, str]:
+    """(Table 4.2 name, Table 4.4 row) of a checkpoint's configuration."""
+    t44 = "SQPDNet" + (" + SE(2)" if config.equivariant else "")
+    t44 += " + Shape" if config.shape_alignment else ""
+    t42 = "GT-SQPD-Net" if config.equivariant else "world-frame + SE(2) aug. (4.7.1)"
+    return t42, t44
+
+
+def _fmt(v: float | None, width: int, digits: int = 3) -> str:
+    return f"{v:{width}.{digits}f}" if v is not None else f"{'-':>{width}s}"
+
+
+def _metrics_of(pred: torch.Tensor, d: Any, iou_tuples: int | None) -> dict[str, float]:
+    """Table 4.2 / 4.4 metrics of predicted next poses ``pred (S, M, 4, 4)`` on split ``d``.
+
+    The same computation as ``sqmanip.dynamics.evaluate.evaluate`` (256 volume points per
+    object, seed 0), for predictors that are not an ``SQPDNet`` (no motion, physics).
+    """
+    from sqmanip.dynamics.evaluate import camera_from_meta
+    from sqmanip.dynamics.metrics import mask_iou_2d, mask_iou_3d, pose_errors
+
+    b = d.batch
+    vol, vmask = volume_points(b.params, b.kinds, 256, seed=0)
+    res: dict[str, float] = {
+        "tuples": float(len(d)),
+        "objects": float(b.mask.sum()),
+        **pose_errors(pred, b.next_poses, b.mask),
+        "full_flow_cm": flow_rmse(pred, b.next_poses, vol, b.mask, vmask),
+        "visible_flow_cm": visible_flow_rmse(b.poses, pred, b.next_poses, d.cloud, d.cloud_labels),
+    }
+    sel = slice(0, iou_tuples)
+    args = (b.params[sel], b.kinds[sel], pred[sel], b.next_poses[sel], b.mask[sel])
+    res["mask_iou_3d"] = mask_iou_3d(*args)
+    camera = camera_from_meta(d.meta)
+    if camera is not None:
+        res["mask_iou_2d"] = mask_iou_2d(*args, camera)
+    return res
+
+
+def _physics_predictions(d: Any) -> tuple[torch.Tensor, int]:
+    """Next poses from re-simulating each tuple's ground-truth superquadrics (4.7.4, w/ GT)."""
+    from sqmanip.dynamics.physics import PhysicsDynamics
+
+    b = d.batch
+    pred = b.poses.clone()
+    failed = 0
+    with PhysicsDynamics() as phys:
+        for i in range(len(d)):
+            m = b.mask[i]
+            action = torch.cat([b.action_p[i], b.action_v[i]])[None]
+            out = phys.predict(b.poses[i, m], b.params[i, m], action, b.kinds[i, m])
+            pred[i, m] = out[0].to(pred.dtype)
+            failed += int(phys.last_failed[0])
+    return pred, failed
+
+
+def part_metrics(args: argparse.Namespace) -> dict[str, Any]:
+    from sqmanip.dynamics.data import PushTensors, load_split
+    from sqmanip.dynamics.evaluate import camera_from_meta, evaluate
+    from sqmanip.dynamics.server import load_checkpoint
+
+    data_root = Path(args.data)
+    splits = {"known": data_root / "test", "unknown": data_root / "unknown"}
+    missing = [str(p) for p in splits.values() if not (p / "manifest.json").is_file()]
+    if missing:
+        raise SystemExit(
+            f"metrics: no split at {missing}; generate one with `python -m "
+            "sqmanip.dynamics.generate pushing --out data/pushing --scale 0.05`"
+        )
+    data = {k: load_split(p, with_cloud=True) for k, p in splits.items()}
+    iou_tuples = 20 if args.quick else None
+    rows: list[dict[str, Any]] = []
+    for model_dir in args.models:
+        model = load_checkpoint(model_dir)
+        t42, t44 = _method_label(model.config)
+        row: dict[str, Any] = {"method": t42, "ablation_row": t44, "model_dir": str(model_dir)}
+        with torch.no_grad():
+            for split, d in data.items():
+                row[split] = evaluate(
+                    model, d, n_points=256, iou_3d=True, camera=camera_from_meta(d.meta),
+                    max_iou_tuples=iou_tuples,
+                )  # fmt: skip
+        rows.append(row)
+    # References: "no motion" (T' = T) bounds what the motion model adds; the physics baseline
+    # (PyBullet with the ground-truth shapes, ~1 s per tuple) on the first tuples of each split.
+    refs: list[dict[str, Any]] = [
+        {"method": "no motion (T' = T)",
+         **{s: _metrics_of(d.batch.poses, d, iou_tuples) for s, d in data.items()}},
+    ]  # fmt: skip
+    n_phys = min(args.physics_tuples, *(len(d) for d in data.values()))
+    if n_phys > 0:
+        phys: dict[str, Any] = {"method": f"PyBullet w/ GT (first {n_phys})"}
+        for split, d in data.items():
+            sub = PushTensors(d.select(slice(0, n_phys)), d.cloud[:n_phys],
+                              d.cloud_labels[:n_phys], d.meta)  # fmt: skip
+            pred, failed = _physics_predictions(sub)
+            phys[split] = {**_metrics_of(pred, sub, iou_tuples), "failed_pushes": float(failed)}
+            for r in rows:  # the learned models on the same tuples, for a like-for-like view
+                model = load_checkpoint(r["model_dir"])
+                with torch.no_grad():
+                    r[f"{split}_first_{n_phys}"] = evaluate(
+                        model, sub, n_points=256, iou_3d=True, camera=camera_from_meta(sub.meta),
+                        max_iou_tuples=iou_tuples,
+                    )  # fmt: skip
+        refs.append(phys)
+
+    keys = ("visible_flow_cm", "full_flow_cm", "mask_iou_2d", "mask_iou_3d")
+    widths = (8, 7, 6, 6)
+    sizes = {k: len(d) for k, d in data.items()}
+
+    def line(name: str, known: Any, unknown: Any) -> str:
+        cells = [" ".join(_fmt(v, w) for v, w in zip(vals, widths, strict=True))
+                 for vals in (known, unknown)]  # fmt: skip
+        return f"{name:<40s} |        {cells[0]} |          {cells[1]}"
+
+    print(f"\nTable 4.2 layout: test metrics on {data_root} (known {sizes['known']} tuples, "
+          f"unknown {sizes['unknown']}; IoU on {iou_tuples or 'all'} tuples); flow in cm")  # fmt: skip
+    head = f"{'visible':>8s} {'full':>7s} {'IoU2D':>6s} {'IoU3D':>6s}"
+    print(f"{'method':<40s} | known: {head} | unknown: {head}")
+    for r in rows:
+        vals = [[r[s].get(k) for k in keys] for s in splits]
+        print(line(r["method"] + " (ours)", *vals))
+    for r in refs:
+        if r["method"].startswith("PyBullet"):
+            for m in rows:
+                vals = [[m[f"{s}_first_{n_phys}"].get(k) for k in keys] for s in splits]
+                print(line(f"{m['method'][:28]} (first {n_phys})", *vals))
+        vals = [[r[s].get(k) for k in keys] for s in splits]
+        print(line(r["method"], *vals))
+    for name, (kn, un) in THESIS_T42.items():
+        print(line(name + " (thesis)", kn, un))
+
+    print("\nTable 4.4 layout: known test set; flow and position in cm, orientation in deg")
+    print(f"{'method':<40s} {'visible':>8s} {'full':>7s} {'pos.':>7s} {'ori.':>7s}"
+          f"   {'thesis: visible':>15s} {'full':>6s} {'pos.':>6s} {'ori.':>7s}")  # fmt: skip
+    for r in [*rows, *refs]:
+        k = r["known"]
+        th = THESIS_T44.get(r.get("ablation_row", ""))
+        tail = f"   {th[0]:15.3f} {th[1]:6.3f} {th[2]:6.3f} {th[3]:7.3f}" if th else ""
+        name = r.get("ablation_row", r["method"]) + (" (ours)" if "ablation_row" in r else "")
+        print(f"{name:<40s} {_fmt(k.get('visible_flow_cm'), 8)} {k['full_flow_cm']:7.3f} "
+              f"{k['position_cm']:7.3f} {k['orientation_deg']:7.3f}{tail}")  # fmt: skip
+    measured = {r["ablation_row"] for r in rows}
+    print("(R-SQPD-Net, with shapes from the perception service, is not measured here; thesis "
+          "Table 4.4 rows without a checkpoint: "
+          + ", ".join(n for n in THESIS_T44 if n not in measured) + ")")  # fmt: skip
+    return {"rows": rows, "references": refs, "data": str(data_root), "tuples": sizes,
+            "iou_tuples": iou_tuples, "physics_tuples": n_phys,
+            "thesis_table_4_2": THESIS_T42, "thesis_table_4_4": THESIS_T44}  # fmt: skip
+
+
 PARTS: dict[str, Callable[[argparse.Namespace], dict[str, Any]]] = {
     "throughput": part_throughput,
     "equivariance": part_equivariance,
+    "metrics": part_metrics,
 }
 
 
@@ -227,7 +409,16 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer repetitions / tuples / steps")
     ap.add_argument("--parts", nargs="+", choices=list(PARTS), default=list(PARTS))
+    ap.add_argument("--data", default="data/pushing",
+                    help="metrics: directory with test/ and unknown/ splits")  # fmt: skip
+    ap.add_argument("--models", nargs="+", default=["models/sqpdnet", "models/sqpdnet_baseline"],
+                    help="metrics: checkpoint directories (config.json + model.pt)")  # fmt: skip
+    ap.add_argument("--physics-tuples", type=int, default=None,
+                    help="metrics: tuples per split for the PyBullet baseline (default 20, "
+                         "5 with --quick; 0 skips it)")  # fmt: skip
     args = ap.parse_args(argv)
+    if args.physics_tuples is None:
+        args.physics_tuples = 5 if args.quick else 20
     print(
         "command:", " ".join([sys.executable, "-m", "benchmarks.dynamics", *(argv or sys.argv[1:])])
     )
