@@ -54,8 +54,13 @@ class PerceptionSettings(BaseSettings):
     """Observed points per problem in the first stage."""
     select_free_points: int = Field(64, ge=0)
     """Free-space samples per problem in the first stage."""
-    refine_iterations: int = Field(40, ge=0)
+    refine_iterations: int = Field(20, ge=0)
     """Adam steps of the second stage, for the best initialisations only, on all points."""
+    refine_points: int = Field(4096, ge=8)
+    """Observed points per problem in the second stage (all of them when at least
+    ``points_per_segment``)."""
+    refine_free_points: int = Field(4096, ge=0)
+    """Free-space samples per problem in the second stage."""
     pca_inits: bool = False
     """Also start from the 3-D principal axes for segments resting on the plane (always used
     for segments not in contact or without a plane)."""
@@ -65,8 +70,10 @@ class PerceptionSettings(BaseSettings):
     """Starting ``(e1, e2)`` of every initialisation."""
     learning_rate: float = Field(0.08, gt=0)
     refine_learning_rate: float = Field(0.04, gt=0)
-    lr_decay: float = Field(0.0, ge=0, le=1)
-    """Each stage's learning rate decays linearly to ``(1 - lr_decay)`` of its start."""
+    lr_decay: float = Field(0.5, ge=0, le=1)
+    """The second stage's learning rate follows a cosine from its start down to
+    ``(1 - lr_decay)`` of it (the first stage, which only ranks initialisations, keeps its
+    rate)."""
     huber_delta: float = Field(0.003, gt=0)
     """Robust (pseudo-Huber) scale of the radial distance (m)."""
     free_space_weight: float = Field(1.0, ge=0)

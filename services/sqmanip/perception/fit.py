@@ -21,14 +21,18 @@ outliers and clustering errors. All (segment, initialisation) problems are one b
 parameters are kept in range by reparametrisation (sizes by a sigmoid in log space between
 ``size_bounds``, exponents ``e = 0.2 + 1.5 sigmoid`` in [0.2, 1.7] (Table 3.1), taper
 ``k = 0.99 tanh``, rotation ``R0 exp([w])``), optimised with Adam; the best initialisations of each
-segment are refined further and the lowest total loss wins.
+segment are refined further (cosine learning-rate decay) and the lowest total loss wins.
 
 Deformations: tapering ``k`` is fitted (cones need ``k ~ -1``, truncated cones partial taper);
 bending stays 0 here (none of the primitive types needs it, and the (identity) bending map would
 double the inner loop's cost). ``deformable=False`` fixes ``k = 0`` too.
 
 Cost: both stages run a fixed number of Adam steps over one batch, so the time hardly depends
-on the number of segments (tens of small tensor ops per step dominate, not arithmetic).
+on the number of segments: the per-op overhead of the small tensors (forward and autograd)
+dominates, not arithmetic. The inner loop is therefore written for few ops: one optimised
+variable (split once), Adam written out in place, the radial distance in log space (no ``pow``
+with tensor exponents, whose backward is costly), the points pre-rotated into each initial frame,
+and the support grid as one ``exp`` of precomputed logs.
 """
 
 from __future__ import annotations
@@ -39,7 +43,7 @@ import math
 import numpy as np
 import torch
 
-from sqmanip.geometry import Superquadric, so3_exp, superellipsoid_surface
+from sqmanip.geometry import Superquadric
 from sqmanip.geometry.deform import TAPER_MIN
 
 from .config import PerceptionSettings
@@ -178,10 +182,6 @@ def _free_space_samples(
     return np.concatenate(samples)
 
 
-def _pseudo_huber(d: torch.Tensor, c: float) -> torch.Tensor:
-    return c * c * (torch.sqrt(1 + (d / c) ** 2) - 1)
-
-
 def tapered_radial_distance(
     x: torch.Tensor, params: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -189,124 +189,242 @@ def tapered_radial_distance(
     ``params (B, 9)`` (bending ignored), and the radial scale ``f^{e1/2}(D_t^{-1} x)`` (< 1 inside).
 
     The same value as :func:`sqmanip.geometry.radial_distance` for ``b = 0`` (a unit test checks
-    it), written for the optimiser's inner loop: the generic function also applies the (identity)
-    bending and re-validates its inputs on every call, which costs about 1.5x the time here.
-    Uses the same scaling trick (``r = max |x_i / a_i|``) so no power overflows far away.
+    it); see :func:`_log_radial` for how it is computed.
     """
-    a1, a2, a3, e1, e2, k = (params[:, i : i + 1] for i in range(6))
-    e1, e2 = e1.clamp(0.2, 1.7), e2.clamp(0.2, 1.7)
-    z = x[..., 2]
-    t = (k * z / a3 + 1.0).clamp_min(TAPER_MIN)
-    q = torch.stack(
-        [(x[..., 0] / (t * a1)).abs(), (x[..., 1] / (t * a2)).abs(), (z / a3).abs()], -1
-    )
-    r = q.amax(-1).clamp_min(1e-20)
-    u = (q / r.unsqueeze(-1)).clamp_min(1e-20)
-    inner = u[..., 0].pow(2 / e2) + u[..., 1].pow(2 / e2)
-    g = inner.pow(e2 / e1) + u[..., 2].pow(2 / e1)
-    scale = r * g.pow(e1 / 2)
+    a, e, k = params[:, 0:3], params[:, 3:5], params[:, 5:6]
+    dist, log_scale = _log_radial(x, torch.log(a), e, k)
+    return dist, torch.exp(log_scale)
+
+
+def _log_radial(
+    x: torch.Tensor, log_a: torch.Tensor, e: torch.Tensor, k: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Radial distance ``(B, N)`` and ``log`` of the radial scale ``(B, N)`` of ``x (B, N, 3)``
+    for half sizes ``exp(log_a) (B, 3)``, exponents ``e (B, 2)`` and taper ``k (B, 1)``.
+
+    Written for the optimiser's inner loop, in log space: with ``l_i = log|x_i / (t_i a_i)|``
+    (``t = k z / a3 + 1`` the taper (2.3.11) on x and y), ``log f = logaddexp((e2/e1)
+    logaddexp(2 l_x / e2, 2 l_y / e2), 2 l_z / e1)`` (2.2.1) and the scale is ``f^{e1/2}``, so
+    no power can overflow far from the shape (``logaddexp`` is stable) and the backward pass
+    has no ``pow`` with a tensor exponent (its gradient needs a log per element anyway).
+    The radial distance (3.3.4) is ``|x| |1 - 1/scale|``.
+    """
+    e1, e2 = e.split(1, -1)
+    la_xy, la_z = log_a.split([2, 1], -1)
+    t = (x[..., 2] * (k * torch.exp(-la_z)) + 1.0).clamp_min(TAPER_MIN)  # (B, N)
+    p_xy, p_z = 2.0 / e2, 2.0 / e1
+    expo = torch.cat([p_xy, p_xy, p_z], -1).unsqueeze(1)  # (B, 1, 3)
+    y0, y1, y2 = ((torch.log(x.abs().clamp_min(1e-30)) - log_a.unsqueeze(1)) * expo).unbind(-1)
+    inner = torch.logaddexp(y0, y1) - torch.log(t) * p_xy
+    log_scale = torch.logaddexp(inner * (e2 / e1), y2) * (0.5 * e1)
     norm = torch.linalg.vector_norm(x, dim=-1)
-    return (norm - norm / scale).abs(), scale
+    return norm * (1.0 - torch.exp(-log_scale)).abs(), log_scale
 
 
-_ETA = torch.linspace(-math.pi / 2, math.pi / 2, 7)
-_OMEGA = torch.linspace(-math.pi, math.pi, 9)[:-1]
-_GRID = torch.meshgrid(_ETA, _OMEGA, indexing="ij")
-_GRID_ETA, _GRID_OMEGA = _GRID[0].reshape(-1), _GRID[1].reshape(-1)
+def _grid_constants() -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Constants of the support grid (2.2.2) on a fixed ``(eta, omega)`` grid of ``G`` points.
+
+    ``signed_pow(cos eta, e1) signed_pow(cos omega, e2)`` is ``sign * exp(e1 L1 + e2 L2)`` with
+    ``L = log|.|``, so the whole surface of a batch is one ``exp`` of an affine map of ``(e1, e2)``.
+    Returns ``sign (G, 3)``, ``L1 (G, 3)`` and ``L2 (G, 3)`` (float32).
+    """
+    eta = np.linspace(-math.pi / 2, math.pi / 2, 7)
+    omega = np.linspace(-math.pi, math.pi, 9)[:-1]
+    E, W = (g.reshape(-1) for g in np.meshgrid(eta, omega, indexing="ij"))
+    ce, se, cw, sw = np.cos(E), np.sin(E), np.cos(W), np.sin(W)
+    sign = np.stack([np.sign(ce) * np.sign(cw), np.sign(ce) * np.sign(sw), np.sign(se)], 1)
+
+    def log(v):
+        return np.log(np.maximum(np.abs(v), 1e-30))
+
+    zero = np.zeros_like(E)
+    L1 = np.stack([log(ce), log(ce), log(se)], 1)
+    L2 = np.stack([log(cw), log(sw), zero], 1)
+    f32 = torch.float32
+    return (
+        torch.as_tensor(sign, dtype=f32),
+        torch.as_tensor(L1, dtype=f32),
+        torch.as_tensor(L2, dtype=f32),
+    )
+
+
+_GRID_SIGN, _GRID_L1, _GRID_L2 = _grid_constants()
+_LEVI = torch.zeros(3, 9)
+"""``w @ _LEVI`` is the flattened skew matrix ``[w]`` (one op instead of a stack of nine)."""
+for _i, _j, _k, _s in ((2, 1, 0, 1), (1, 2, 0, -1), (0, 2, 1, 1), (2, 0, 1, -1), (1, 0, 2, 1),
+                       (0, 1, 2, -1)):  # fmt: skip
+    _LEVI[_k, 3 * _i + _j] = _s
+_EYE = torch.eye(3)
+
+# columns of the single optimised variable ``u (B, 12)``
+_A, _E, _K, _W, _T = slice(0, 3), slice(3, 5), slice(5, 6), slice(6, 9), slice(9, 12)
+
+
+def _so3_exp(w: torch.Tensor) -> torch.Tensor:
+    """Rodrigues' formula for ``w (B, 3)`` in few ops (the optimiser's inner loop).
+
+    Same as :func:`sqmanip.geometry.so3_exp`; near ``w = 0`` the first-order terms are exact
+    enough (the second-order coefficient's float32 error multiplies ``|w|^2``).
+    """
+    K = (w @ _LEVI).view(-1, 3, 3)
+    t2 = (w * w).sum(-1).clamp_min(1e-12).view(-1, 1, 1)
+    t = t2.sqrt()
+    return _EYE + (torch.sin(t) / t) * K + ((1 - torch.cos(t)) / t2) * (K @ K)
 
 
 class _Batch:
-    """Unconstrained variables of ``B`` problems and the map to superquadric parameters."""
+    """``B`` problems: fixed initial rotations ``R0``, translations ``t0`` (local frame) and one
+    unconstrained variable ``u (B, 12) = [u_a, u_e, u_k, w, u_t]`` mapped to parameters by
+    ``a = exp(lo + (hi - lo) sigmoid(u_a))`` (log space, between ``size_bounds``),
+    ``e = 0.2 + 1.5 sigmoid(u_e)``, ``k = 0.99 tanh(u_k)``, ``R = R0 exp([w])`` and
+    ``t = t0 + T_SCALE R0 u_t`` (translation steps in the initial object frame).
+
+    One leaf tensor (instead of five) keeps the optimiser to a handful of ops per step.
+    """
 
     def __init__(self, R0, t0, a0, e0, lo: float, hi: float, deformable: bool):
         B = R0.shape[0]
         self.R0 = R0
-        self.t0 = t0
-        self.log_lo, self.log_hi = math.log(lo), math.log(hi)
-        frac = (torch.log(a0.clamp(lo * 1.01, hi * 0.99)) - self.log_lo) / (
-            self.log_hi - self.log_lo
-        )
-        self.u_a = torch.logit(frac).clone().requires_grad_(True)
-        self.u_e = torch.logit((e0 - E_LO) / E_SPAN).clone().requires_grad_(True)
-        self.u_t = torch.zeros(B, 3, requires_grad=True)
-        self.w = torch.zeros(B, 3, requires_grad=True)
-        self.u_k = torch.zeros(B, 1, requires_grad=deformable)
+        self.t0_obj = (t0.unsqueeze(1) @ R0).squeeze(1)  # t0 in the initial object frame
+        self.log_lo, self.log_span = math.log(lo), math.log(hi) - math.log(lo)
+        frac = (torch.log(a0.clamp(lo * 1.01, hi * 0.99)) - self.log_lo) / self.log_span
+        u = torch.zeros(B, 12)
+        u[:, _A] = torch.logit(frac)
+        u[:, _E] = torch.logit((e0 - E_LO) / E_SPAN)
+        self.u = u
         self.deformable = deformable
-
-    def variables(self) -> list[torch.Tensor]:
-        v = [self.u_a, self.u_e, self.u_t, self.w]
-        return [*v, self.u_k] if self.deformable else v
+        self.k_mask = 1.0 if deformable else 0.0
 
     def select(self, idx: torch.Tensor) -> _Batch:
         new = object.__new__(_Batch)
-        new.R0, new.t0 = self.R0[idx], self.t0[idx]
-        new.log_lo, new.log_hi, new.deformable = self.log_lo, self.log_hi, self.deformable
-        for name in ("u_a", "u_e", "u_t", "w", "u_k"):
-            src = getattr(self, name)
-            setattr(new, name, src.detach()[idx].clone().requires_grad_(src.requires_grad))
+        new.R0, new.t0_obj = self.R0[idx], self.t0_obj[idx]
+        new.log_lo, new.log_span = self.log_lo, self.log_span
+        new.deformable, new.k_mask = self.deformable, self.k_mask
+        new.u = self.u.detach()[idx].clone()
         return new
 
-    def unpack(self):
-        a = torch.exp(self.log_lo + (self.log_hi - self.log_lo) * torch.sigmoid(self.u_a))
-        e = E_LO + E_SPAN * torch.sigmoid(self.u_e)
-        k = K_MAX * torch.tanh(self.u_k)
-        zeros = torch.zeros_like(k)
-        params = torch.cat([a, e, k, zeros, zeros, zeros], -1)  # (B, 9)
-        R = self.R0 @ so3_exp(self.w)
-        t = self.t0 + T_SCALE * self.u_t
-        return params, R, t
+    def unpack(self, u: torch.Tensor | None = None):
+        """``params (B, 9)``, the rotation update ``E = exp([w])`` (``R = R0 E``) and the
+        translation ``t_obj (B, 3)`` in the initial object frame (``t = R0 t_obj``)."""
+        log_a, e, k, E, t_obj = self.fields(self.u if u is None else u)
+        params = torch.cat([torch.exp(log_a), e, k, torch.zeros_like(log_a)], -1)  # no bending
+        return params, E, t_obj
+
+    def fields(self, u: torch.Tensor):
+        """``log a (B, 3)``, ``e (B, 2)``, ``k (B, 1)``, ``E (B, 3, 3)``, ``t_obj (B, 3)`` of
+        ``u``; one ``split`` (not five slices) so the backward pass has one node for it."""
+        u_ae, u_k, w, u_t = u.split([5, 1, 3, 3], 1)
+        s_a, s_e = torch.sigmoid(u_ae).split([3, 2], 1)
+        log_a = self.log_lo + self.log_span * s_a
+        e = E_LO + E_SPAN * s_e
+        k = (K_MAX * self.k_mask) * torch.tanh(u_k)
+        return log_a, e, k, _so3_exp(w), self.t0_obj + T_SCALE * u_t
+
+    def pose(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """``R (B, 3, 3)`` and ``t (B, 3)`` in the local frame."""
+        with torch.no_grad():
+            _, E, t_obj = self.unpack()
+            return self.R0 @ E, (self.R0 @ t_obj.unsqueeze(-1)).squeeze(-1)
 
 
 @dataclasses.dataclass
 class _Data:
-    X: torch.Tensor  # (B, P, 3) local
-    F: torch.Tensor  # (B, Fm, 3) local free-space samples
+    X: torch.Tensor  # (B, P, 3) observed points, local frame
+    F: torch.Tensor  # (B, Fm, 3) free-space samples, local frame
     Fw: torch.Tensor  # (B, Fm) weights (0 = padding)
     contact: torch.Tensor  # (B,) 1 if the segment rests on the plane
     has_plane: bool
 
+    def select(self, idx: torch.Tensor) -> _Data:
+        return _Data(self.X[idx], self.F[idx], self.Fw[idx], self.contact[idx], self.has_plane)
 
-def _losses(batch: _Batch, data: _Data, settings: PerceptionSettings, amodal: bool):
-    params, R, t = batch.unpack()
-    n = data.X.shape[1]
-    use_free = amodal and data.F.shape[1] > 0 and settings.free_space_weight > 0
-    pts = torch.cat([data.X, data.F], 1) if use_free else data.X  # one pass for both terms
-    local = (pts - t.unsqueeze(1)) @ R  # (B, N, 3) object frame
-    dist, scale = tapered_radial_distance(local, params)
-    delta = dist[:, :n]
-    loss = _pseudo_huber(delta, settings.huber_delta).mean(-1)
-    if batch.deformable:
-        loss = loss + settings.taper_weight * params[:, 5] ** 2
-    if not amodal:
+    def subset(self, n_points: int, n_free: int, g: torch.Generator) -> _Data:
+        """The same problems on random subsets of the points and free-space samples."""
+        P, Fm = self.X.shape[1], self.F.shape[1]
+        if n_points >= P and n_free >= Fm:
+            return self
+        pi = torch.randperm(P, generator=g)[: min(n_points, P)]
+        fi = torch.randperm(Fm, generator=g)[: min(n_free, Fm)]
+        return _Data(self.X[:, pi], self.F[:, fi], self.Fw[:, fi], self.contact, self.has_plane)
+
+
+class _Problem:
+    """Loss of a batch on fixed data, with everything that does not depend on ``u`` hoisted:
+    the points in each initial object frame (``(x - t) R0 E = (x R0 - t_obj) E``), the
+    free-space weights' normaliser and the contact mask."""
+
+    def __init__(self, batch: _Batch, data: _Data, settings: PerceptionSettings, amodal: bool):
+        self.batch, self.settings, self.amodal = batch, settings, amodal
+        self.n = data.X.shape[1]
+        self.use_free = amodal and data.F.shape[1] > 0 and settings.free_space_weight > 0
+        pts = torch.cat([data.X, data.F], 1) if self.use_free else data.X
+        self.P0 = pts @ batch.R0  # (B, N, 3) in the initial object frames
+        self.Fw = data.Fw if self.use_free else None
+        self.Fw_norm = settings.free_space_weight / data.Fw.sum(-1).clamp_min(1.0)
+        self.use_support = amodal and data.has_plane and settings.support_weight > 0
+        self.contact = data.contact > 0
+        self.R0z = batch.R0[:, 2:3, :]  # (B, 1, 3) local z row of R0
+        c = settings.huber_delta
+        self.c, self.c2, self.inv_n = c, c * c, 1.0 / self.n
+
+    def __call__(self, u: torch.Tensor, data_only: bool = False):
+        """Per-problem loss ``(B,)`` and the radial distances ``(B, P)`` of the points."""
+        s, n = self.settings, self.n
+        log_a, e, k, E, t_obj = self.batch.fields(u)
+        local = torch.baddbmm(-(t_obj.unsqueeze(1) @ E), self.P0, E)  # (P0 - t_obj) E
+        dist, log_scale = _log_radial(local, log_a, e, k)
+        if self.use_free:
+            delta, d_free = dist.split([n, dist.shape[1] - n], 1)
+        else:
+            delta = dist
+        # pseudo-Huber c^2 (sqrt(1 + (d/c)^2) - 1) = c sqrt(c^2 + d^2) - c^2
+        loss = (delta * delta + self.c2).sqrt().sum(-1) * (self.c * self.inv_n) - self.c2
+        if self.batch.deformable:
+            loss = loss + s.taper_weight * k[:, 0] ** 2
+        if data_only or not self.amodal:
+            return loss, delta
+        if self.use_free:
+            inside = (log_scale[:, n:].detach() < 0.0) * self.Fw
+            loss = loss + (inside * d_free * d_free).sum(-1) * self.Fw_norm
+        if self.use_support:
+            a = torch.exp(log_a).unsqueeze(1)  # (B, 1, 3)
+            expo = e[:, None, 0:1] * _GRID_L1 + e[:, None, 1:2] * _GRID_L2  # (B, G, 3)
+            sx, sy, sz = (_GRID_SIGN * torch.exp(expo)).unbind(-1)  # unit-size grid (2.2.2)
+            taper = (k * sz + 1.0).clamp_min(TAPER_MIN)  # D_t (2.3.11), z / a3 = sz
+            Rz = (self.R0z @ E) * a  # (B, 1, 3): local z row of R = R0 E, times the sizes
+            rx, ry, rz = Rz.unbind(-1)
+            z = (sx * rx + sy * ry) * taper + sz * rz + (self.R0z @ t_obj.unsqueeze(-1))[..., 0]
+            zmin = z.amin(-1)
+            gap = torch.where(self.contact, zmin, torch.relu(-zmin))
+            loss = loss + s.support_weight * gap * gap
         return loss, delta
-    if use_free:
-        inside = (scale[:, n:].detach() < 1.0).to(dist.dtype) * data.Fw
-        free = (inside * dist[:, n:] ** 2).sum(-1) / data.Fw.sum(-1).clamp_min(1.0)
-        loss = loss + settings.free_space_weight * free
-    if data.has_plane and settings.support_weight > 0:
-        a1, a2, a3, e1, e2, k = (params[:, i : i + 1] for i in range(6))
-        s = superellipsoid_surface(_GRID_ETA, _GRID_OMEGA, a1, a2, a3, e1, e2)  # (B, G, 3)
-        taper = (k.unsqueeze(-1) * s[..., 2:] / a3.unsqueeze(-1) + 1.0).clamp_min(TAPER_MIN)
-        s = torch.cat([s[..., :2] * taper, s[..., 2:]], -1)  # D_t (2.3.11)
-        z = (s * R[:, 2:3, :]).sum(-1) + t[:, 2:3]  # height above the plane
-        zmin = z.amin(-1)
-        gap = torch.where(data.contact > 0, zmin, torch.relu(-zmin))
-        loss = loss + settings.support_weight * gap**2
-    return loss, delta
 
 
-def _optimise(batch: _Batch, data: _Data, settings, amodal: bool, steps: int, lr: float):
-    opt = torch.optim.Adam(batch.variables(), lr=lr, foreach=True)
+def _optimise(problem: _Problem, steps: int, lr: float, lr_final: float) -> None:
+    """Adam on ``problem.batch.u`` (in place) for ``steps`` steps, the learning rate following
+    a cosine from ``lr`` to ``lr_final`` (large moves first, then settle in few steps).
+
+    Written out (instead of ``torch.optim.Adam``) on the single variable: a handful of in-place
+    ops per step, no per-parameter Python loop.
+    """
+    if steps <= 0:
+        return
+    b1, b2, eps = 0.9, 0.999, 1e-8
+    u = problem.batch.u.detach().clone().requires_grad_(True)
+    m = torch.zeros_like(u)
+    v = torch.zeros_like(u)
     for i in range(steps):
-        # linear decay by lr_decay: large moves first, then settle (few steps in all)
-        opt.param_groups[0]["lr"] = lr * (1.0 - settings.lr_decay * i / max(steps - 1, 1))
-        opt.zero_grad(set_to_none=True)
-        loss, _ = _losses(batch, data, settings, amodal)
-        loss.sum().backward()
-        opt.step()
-    with torch.no_grad():
-        loss, delta = _losses(batch, data, settings, amodal)
-    return loss, delta
+        loss, _ = problem(u)
+        (g,) = torch.autograd.grad(loss.sum(), u)
+        cos = 0.5 * (1 + math.cos(math.pi * i / max(steps - 1, 1)))
+        lr_i = lr_final + (lr - lr_final) * cos
+        with torch.no_grad():
+            m.mul_(b1).add_(g, alpha=1 - b1)
+            v.mul_(b2).addcmul_(g, g, value=1 - b2)
+            bc1, bc2 = 1 - b1 ** (i + 1), 1 - b2 ** (i + 1)
+            denom = (v / bc2).sqrt_().add_(eps)
+            u.addcdiv_(m, denom, value=-lr_i / bc1)
+    problem.batch.u = u.detach()
 
 
 def fit_segments(
@@ -378,7 +496,7 @@ def _fit(segments, plane, viewpoint, table_points, settings, amodal, deformable,
         Fpad[i, : len(f)] = f
         Fw[i, : len(f)] = 1.0
     f32 = torch.float32
-    data = _Data(
+    full_data = data = _Data(
         torch.as_tensor(np.stack(Xs), dtype=f32),
         torch.as_tensor(Fpad, dtype=f32),
         torch.as_tensor(Fw, dtype=f32),
@@ -395,18 +513,16 @@ def _fit(segments, plane, viewpoint, table_points, settings, amodal, deformable,
         hi,
         deformable,
     )
-    # stage 1: every initialisation on a random subset of the points and free-space samples
+    # stage 1: every initialisation on a random subset of the points and free-space samples,
+    # for a few steps only: enough to rank the initialisations of each segment
     g = torch.Generator().manual_seed(seed)
-    n_sel = min(settings.select_points, data.X.shape[1])
-    f_sel = min(settings.select_free_points, data.F.shape[1])
-    pi = torch.randperm(data.X.shape[1], generator=g)[:n_sel]
-    fi = torch.randperm(data.F.shape[1], generator=g)[:f_sel]
-    small = _Data(data.X[:, pi], data.F[:, fi], data.Fw[:, fi], data.contact, use_plane)
-    loss, _ = _optimise(
-        batch, small, settings, amodal, settings.fit_iterations, settings.learning_rate
-    )
+    small = data.subset(settings.select_points, settings.select_free_points, g)
+    problem = _Problem(batch, small, settings, amodal)
+    _optimise(problem, settings.fit_iterations, settings.learning_rate, settings.learning_rate)
+    with torch.no_grad():
+        loss, _ = problem(batch.u)
     owner_t = torch.as_tensor(owner)
-    # stage 2: the best initialisations of each segment on all points
+    # stage 2: the best initialisations of each segment, on more points
     keep = []
     for si in range(len(segments)):
         idx = torch.nonzero(owner_t == si).squeeze(-1)
@@ -414,14 +530,18 @@ def _fit(segments, plane, viewpoint, table_points, settings, amodal, deformable,
         keep.append(idx[order])
     keep_t = torch.cat(keep)
     batch = batch.select(keep_t)
-    data = _Data(data.X[keep_t], data.F[keep_t], data.Fw[keep_t], data.contact[keep_t], use_plane)
+    data = data.select(keep_t).subset(settings.refine_points, settings.refine_free_points, g)
     owner_t = owner_t[keep_t]
-    loss, _ = _optimise(
-        batch, data, settings, amodal, settings.refine_iterations, settings.refine_learning_rate
-    )
+    problem = _Problem(batch, data, settings, amodal)
+    lr2 = settings.refine_learning_rate
+    _optimise(problem, settings.refine_iterations, lr2, lr2 * (1.0 - settings.lr_decay))
     with torch.no_grad():
-        params, R, t = batch.unpack()
-        _, delta = _losses(batch, data, settings, False)
+        loss, _ = problem(batch.u)
+        params, _, _ = batch.unpack()
+        R, t = batch.pose()
+        # residual on all points of each segment
+        full = _Problem(batch, full_data.select(keep_t), settings, False)
+        _, delta = full(batch.u, data_only=True)
     results = []
     for si in range(len(segments)):
         idx = torch.nonzero(owner_t == si).squeeze(-1)
