@@ -58,6 +58,12 @@ class SearchConfig:
     """Approach yaws about the vertical for a round target (a cylinder can be grasped from any
     side, 5.6.3); with ``grasp_heights`` this gives N_gr = 20 (thesis: 10 to 30)."""
     grasp_heights: int = 4
+    floor_clearance: float = 0.02
+    """Target grasps whose open gripper comes closer than this to the floor are dropped, and
+    executed actions keep the gripper this far from the floor (ours)."""
+    grasp_voxel: float = 0.005
+    """Target voxel size (m) of the object occupancy in the fast afterimage test; the actual
+    size divides ``resolution`` (ours)."""
     facing_angle_deg: float = 50.0
     """Side grasps must approach within this of +x (into the shelf, from the robot)."""
     # --- objective and MPC (5.4.3-5.4.7) ---

@@ -2,8 +2,12 @@
 
 ``f_c(x) = 1(min_{i,j} S_i(x_j^o) > 1)`` (C.2.10) with ``n_o = 512`` target surface points against
 every recognized object and the five shelf boards. The boards never move, so their part is
-computed once per (shelf, target, grid) and cached; per scene only the objects are tested
-(:meth:`Obstacles.hits`: exact, culled by bounding spheres and boxes).
+computed once per (shelf, target, grid) and cached (exact point test). Per scene the objects are
+tested by the voxel correlation of :class:`.graspability.VoxelAfterimage` (the target's points
+at every grid pose are translations of one set, so one gather per point and row of poses),
+without inflation: a point collides when the centre of its 5 mm voxel is inside the object, so
+the answer is exact up to half a voxel (:meth:`collision_free` keeps the exact culled point test
+of :meth:`Obstacles.hits` as the reference; the tests compare the two).
 
 ``f_d(x) = 1`` iff the mean squared difference between the soft depth images (C.2.5-C.2.8,
 ``p = 1000``, ``tau = 100``, ``[t_n, t_f] = [0, 1.5]``) rendered with and without the target at
@@ -120,6 +124,17 @@ class ExistenceModel:
             self.points, self.point_centers, self.point_radii, grid.poses
         ).any(-1)
         self._foot = self._target_footprints()
+        # fast f_c: the target points are translations of one set per yaw, as the grasps of g
+        from .graspability import VoxelAfterimage
+
+        n_th = len(torch.unique(grid.theta))
+        rep = grid.poses[:n_th].double()
+        raw = self.points.reshape(-1, 3).double()
+        world = raw @ rep[:, :3, :3].transpose(-1, -2) + rep[:, None, :3, 3]  # (T, J, 3)
+        world[..., :2] -= rep[0, :2, 3]
+        self.voxels = VoxelAfterimage(
+            world.unsqueeze(1), rep[0, :2, 3], grid.shape, grid.resolution, cfg.grasp_voxel, 0.0
+        )
 
     # --- caches -------------------------------------------------------------------------------
 
@@ -188,6 +203,21 @@ class ExistenceModel:
             )
             sel[idx[hit]] = False
         return sel if P else torch.zeros(0, dtype=torch.bool)
+
+    def object_collisions(self, scene: SceneState, i: int) -> torch.Tensor:
+        """``(P,)`` bool: the target at each grid pose meets object ``i`` (voxel correlation of
+        :class:`.graspability.VoxelAfterimage` without inflation: a target point collides when
+        its 5 mm voxel's centre is inside the object, i.e. exact up to half a voxel)."""
+        return self.voxels.hits(scene.params[i], scene.poses[i], int(scene.kinds[i]))[:, 0]
+
+    def collision_free_fast(
+        self, scene: SceneState, mask: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """``f_c`` as :meth:`collision_free` with the objects tested by voxel correlation."""
+        sel = self.fc_shelf.clone() if mask is None else self.fc_shelf & mask
+        for i in range(len(scene)):
+            sel &= ~self.object_collisions(scene, i)
+        return sel
 
     def object_depth(self, scene: SceneState, pixels: torch.Tensor) -> torch.Tensor:
         """Soft depth ``D_0`` of the objects alone (C.2.5-C.2.9) on flat ``pixels (R,)``."""
@@ -263,7 +293,7 @@ class ExistenceModel:
                 f[i] = 1.0
             return f
         m = torch.ones(P, dtype=torch.bool) if mask is None else mask.bool()
-        fc = self.collision_free(scene, m)
+        fc = self.collision_free_fast(scene, m)
         fd = self.invisible(scene, fc)
         return (fc & fd).to(self.dtype)
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any, Literal
 
 import numpy as np
@@ -43,6 +43,45 @@ class Decision:
     reason: str = ""
 
 
+class _GraspCache:
+    """Rule-based C.3 grasps of an object (ray casting, the costliest part of sampling a
+    pick-and-place in a rollout) cached by shape and orientation: the candidates translate with
+    the object, so they are computed once per (params, rotation) and shifted; only the
+    afterimage collision test runs per predicted scene."""
+
+    def __init__(self, sampler: ActionSampler, size: int = 2048) -> None:
+        self.sampler, self.size = sampler, size
+        self._cache: dict[bytes, torch.Tensor] = {}
+
+    def grasps(self, scene: SceneState, i: int) -> torch.Tensor:
+        s = self.sampler
+        T = scene.poses[i].double()
+        key = (
+            np.round(scene.params[i].double().numpy(), 5).tobytes()
+            + np.round(T[:3, :3].numpy(), 4).tobytes()
+            + bytes([int(scene.kinds[i])])
+        )
+        local = self._cache.get(key)
+        if local is None:
+            obj = scene.objects()[i]
+            centred = obj.pose.copy()
+            centred[:3, 3] = 0.0
+            from sqmanip.grasping.rule_based import rule_based_candidates
+
+            obj0 = dataclasses.replace(obj, pose=centred)
+            cand = rule_based_candidates([obj0], options=s.rule, dtype=s.dtype)
+            local = cand.poses if len(cand) else torch.zeros(0, 4, 4, dtype=s.dtype)
+            if len(self._cache) >= self.size:
+                self._cache.clear()
+            self._cache[key] = local
+        if local.shape[0] == 0:
+            return local
+        cand = local.clone()
+        cand[:, :3, 3] += T[:3, 3].to(cand.dtype)
+        free = s._free(s._others(scene, i), s.after, cand)
+        return cand[free]
+
+
 class SearchPlanner:
     """Search-for-grasp / search-and-grasp planner; grids and caches are built per (shelf, target,
     camera) on first use and reused."""
@@ -57,6 +96,8 @@ class SearchPlanner:
         self.gripper = grasp_generator or PANDA_HAND
         self.config = config or SearchConfig()
         self._models: dict[Any, tuple[PoseGrid, FGEvaluator, ActionSampler]] = {}
+        self._grasp_cache: dict[int, _GraspCache] = {}
+        self._corners: np.ndarray | None = None
 
     def models(self, shelf: ShelfSpec, target: TargetSpec, camera: PinholeCamera):
         key = (
@@ -73,11 +114,9 @@ class SearchPlanner:
             grid = make_pose_grid(shelf, target, cfg.resolution, cfg.n_theta)
             ex = ExistenceModel(shelf, target, grid, camera, cfg)
             gm = GraspabilityModel(shelf, target, grid, cfg, self.gripper)
-            self._models[key] = (
-                grid,
-                FGEvaluator(ex, gm, cfg),
-                ActionSampler(shelf, cfg, self.gripper),
-            )
+            sampler = ActionSampler(shelf, cfg, self.gripper)
+            self._grasp_cache[id(sampler)] = _GraspCache(sampler)
+            self._models[key] = (grid, FGEvaluator(ex, gm, cfg), sampler)
         return self._models[key]
 
     def decide(
@@ -90,8 +129,12 @@ class SearchPlanner:
         target_pose: np.ndarray | None = None,
         rng: np.random.Generator | int | None = None,
         prior: np.ndarray | torch.Tensor | None = None,
+        reject: Callable[[Action], bool] | None = None,
     ) -> Decision:
-        """One MPC step. ``prior (P,)`` is the previous ``f`` (optional; ``f <= prior``)."""
+        """One MPC step. ``prior (P,)`` is the previous ``f`` (optional; ``f <= prior``);
+        ``reject`` (optional) drops first actions (e.g. ones the robot refused before).
+
+        Sampled actions the robot cannot execute are dropped (:meth:`feasible`)."""
         if target_visible and target_pose is None:
             raise ValidationError("target_pose is required when target_visible is true")
         rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
@@ -135,6 +178,7 @@ class SearchPlanner:
         )
         cands = sampler.candidates(scene, keep_out)
         first = sampler.sample(scene, rng, cfg.n_sequences, keep_out, cands)
+        first = [a for a in first if self.feasible(a, shelf) and (reject is None or not reject(a))]
         times["sample"] = (time.perf_counter() - t) * 1e3
         if not first:
             times["total"] = (time.perf_counter() - t0) * 1e3
@@ -162,6 +206,7 @@ class SearchPlanner:
         cfg = self.config
         grid = ev.em.grid
         costs = np.zeros(len(first))
+        self._shelf = shelf
         states = apply_actions(scene, first, self.dynamics, shelf)
         for s, s1 in enumerate(states):
             J = [root.J]
@@ -187,6 +232,33 @@ class SearchPlanner:
             costs[s] = sequence_cost(J, cfg.gamma)
         return costs
 
+    def feasible(self, a: Action, shelf: ShelfSpec) -> bool:
+        """Execution limits of the robot in the shelf that the sampler does not model: a push
+        keeps the hand (palm half width ``palm_size[1] / 2`` across the push) off the side
+        walls and its tool inside the shelf, a pick-and-place keeps the open gripper
+        ``floor_clearance`` above the floor at the grasp and the place pose."""
+        cfg = self.config
+        g = self.gripper
+        half_w = shelf.inner_width / 2
+        if isinstance(a, Push):
+            y_lim = half_w - g.palm_size[1] / 2 - 0.005
+            x_lo, x_hi = shelf.front_x + 0.005, shelf.front_x + shelf.depth - 0.01
+            for p in (a.start, a.start + a.displacement):
+                if abs(p[1]) > y_lim or not (x_lo <= p[0] <= x_hi):
+                    return False
+            return True
+        if self._corners is None:
+            from .graspability import gripper_corners
+
+            self._corners = gripper_corners(g).numpy()
+        for T in (a.grasp_pose, a.place_pose):
+            z = self._corners @ T[:3, :3].T + T[:3, 3]
+            if z[:, 2].min() < shelf.bottom_z + cfg.floor_clearance:
+                return False
+            if abs(T[1, 3]) > half_w - 0.01:
+                return False
+        return True
+
     def _one_action(self, state, sampler: ActionSampler, rng, keep_out) -> Action | None:
         """A single action for a predicted scene: a random object and type, checked lazily."""
         cfg = self.config
@@ -201,17 +273,19 @@ class SearchPlanner:
                 if p:
                     direction, T, tcp = p[int(rng.integers(len(p)))]
                     d = float(cfg.push_distances[int(rng.integers(len(cfg.push_distances)))])
-                    return Push(
-                        "push", i, direction, d, T, tcp, np.array([0.0, direction * d, 0.0])
-                    )
+                    a = Push("push", i, direction, d, T, tcp, np.array([0.0, direction * d, 0.0]))
+                    if self.feasible(a, self._shelf):
+                        return a
             else:
-                gr = sampler.grasps(state, i)
+                gr = self._grasp_cache[id(sampler)].grasps(state, i)
                 if gr.shape[0]:
                     spots = sampler.place_spots(state, i, gr[0], keep_out)
                     if spots.shape[0]:
                         place = gr[0].double().numpy().copy()
                         place[:2, 3] += spots[int(rng.integers(spots.shape[0]))].double().numpy()
-                        return PickAndPlace("pick_and_place", i, gr[0].double().numpy(), place)
+                        a = PickAndPlace("pick_and_place", i, gr[0].double().numpy(), place)
+                        if self.feasible(a, self._shelf):
+                            return a
         return None
 
 

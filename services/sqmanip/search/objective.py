@@ -8,8 +8,8 @@
 ``g_c,m`` of C.3.13), or for search-and-grasp ``J_t = sum_x f_t(x)`` before the target is seen and
 ``1 - g_t(x*)`` after (5.3). The cost of a sequence is ``sum_t gamma^t (J_{t+1} - J_t)`` (5.4.6).
 
-Per-object caching: both ``f_c`` and the afterimage collisions of ``g`` are ORs / sums over
-objects, and a rollout step moves one object (pick-and-place) or a few (push), so each object's
+Per-object caching: both ``f_c`` and the afterimage collisions of ``g`` (the voxel correlation
+of :class:`.graspability.VoxelAfterimage`, all grid poses at once) are ORs / sums over objects, and a rollout step moves one object (pick-and-place) or a few (push), so each object's
 contribution is cached by its (shape, pose) and only moved objects are re-tested.
 """
 
@@ -39,6 +39,7 @@ class Maps:
 
 class _ObjectEntry:
     def __init__(self, P: int, K: int) -> None:
+        self.depth: torch.Tensor | None = None
         self.fc_done = torch.zeros(P, dtype=torch.bool)
         self.fc_hit = torch.zeros(P, dtype=torch.bool)
         self.g_done = torch.zeros(P, dtype=torch.bool)
@@ -55,6 +56,8 @@ class FGEvaluator:
         self.P = len(existence.grid)
         self.grasp = grasp
         self._cache: dict[bytes, _ObjectEntry] = {}
+        fp = existence._foot
+        self._pixels, self._foot_pixel = torch.unique(fp.pixel, return_inverse=True)
 
     def _entry(self, scene: SceneState, i: int) -> _ObjectEntry:
         key = (
@@ -79,13 +82,9 @@ class FGEvaluator:
         out = ex.fc_shelf & mask
         for i in range(len(scene)):
             e = self._entry(scene, i)
-            todo = (out & ~e.fc_done).nonzero().squeeze(-1)
-            if todo.numel():
-                hit = self._single(scene, i).hits(
-                    ex.points, ex.point_centers, ex.point_radii, ex.grid.poses[todo]
-                )[:, 0]
-                e.fc_hit[todo] = hit
-                e.fc_done[todo] = True
+            if not bool(e.fc_done[0]):  # all poses at once (voxel correlation)
+                e.fc_hit = ex.object_collisions(scene, i)
+                e.fc_done[:] = True
             out &= ~e.fc_hit
         return out
 
@@ -101,17 +100,40 @@ class FGEvaluator:
         n = gm.n_shelf[idx].clone()
         for i in range(len(scene)):
             e = self._entry(scene, i)
-            todo = idx[~e.g_done[idx]]
-            if todo.numel():
-                e.g_hit[todo] = gm._counts(self._single(scene, i), todo).bool()
-                e.g_done[todo] = True
+            if not bool(e.g_done[0]):  # all poses at once by voxel correlation (C.3, fast)
+                e.g_hit = gm.object_hits(scene, i)
+                e.g_done[:] = True
             n += e.g_hit[idx].long()
-        _, valid = gm.grasp_poses(idx)
+        valid = gm.local_valid[gm._theta_index[idx]]
         n = torch.where(valid, n, torch.full_like(n, n_obs))
         n_min, k = n.min(-1)
         g_m[idx] = (1 - n_min).to(gm.dtype)
         best[idx] = torch.where(n_min < n_obs, k, torch.full_like(k, -1))
         return (g_m >= 1).to(gm.dtype), g_m, best
+
+    def invisible(self, scene: SceneState, mask: torch.Tensor) -> torch.Tensor:
+        """``f_d`` on ``mask`` as :meth:`ExistenceModel.invisible`, with the objects' depth
+        ``D_0 = min_i D_i`` from per-object soft depths cached on every footprint pixel.
+
+        The min is reduction 2 of :mod:`.existence` applied between objects: exact in the hard
+        limit for objects that do not overlap along a ray, and within ``exp(-tau w) / tau`` of the
+        joint soft render for an occluder of thickness ``w`` (0.5 mm at 3 cm)."""
+        ex = self.em
+        out = torch.zeros(self.P, dtype=torch.bool)
+        fp = ex._foot
+        keep = mask[fp.pose]
+        if not bool(keep.any()):
+            return mask.clone()
+        d0 = torch.full((self._pixels.numel(),), ex.config.t_far, dtype=ex.dtype)
+        for i in range(len(scene)):
+            e = self._entry(scene, i)
+            if e.depth is None:
+                e.depth = ex.object_depth(_single_scene(scene, i), self._pixels)
+            d0 = torch.minimum(d0, e.depth)
+        sq = (d0[self._foot_pixel[keep]] - fp.depth[keep]).clamp_min(0) ** 2
+        sse = torch.zeros(self.P, dtype=ex.dtype).index_add_(0, fp.pose[keep], sq)
+        out = (sse / ex.n_pixels) < ex.config.mse_threshold
+        return out & mask
 
     def existence(self, scene, *, visible=False, target_pose=None, mask=None) -> torch.Tensor:
         ex = self.em
@@ -119,7 +141,7 @@ class FGEvaluator:
             return ex.evaluate(scene, visible=True, target_pose=target_pose, mask=mask)
         m = torch.ones(self.P, dtype=torch.bool) if mask is None else mask.bool()
         fc = self.collision_free(scene, m)
-        return (fc & ex.invisible(scene, fc)).to(ex.dtype)
+        return (fc & self.invisible(scene, fc)).to(ex.dtype)
 
     def maps(
         self,
@@ -141,6 +163,10 @@ class FGEvaluator:
             g_m = torch.zeros(P, dtype=f.dtype)
             best = torch.full((P,), -1, dtype=torch.long)
         return Maps(f, g, g_m, best, objective_value(f, g_m, self.config, visible))
+
+
+def _single_scene(scene: SceneState, i: int) -> SceneState:
+    return SceneState(scene.params[i : i + 1], scene.poses[i : i + 1], scene.kinds[i : i + 1])
 
 
 def objective_value(

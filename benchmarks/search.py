@@ -1,0 +1,368 @@
+"""Table 5.1: find / grasp success and mean steps of the four methods (O-/R- x search-and-grasp /
+search-for-grasp) on simulated shelf scenarios with 2, 4, 6 and 8 surrounding objects, beside the
+thesis' numbers; plus the timing of f and g over the whole pose grid (C.2: 13 ms, C.3: 12.8 ms on
+an RTX 3090).
+
+Scenarios (:mod:`sqmanip.search.scenarios`) are generated once per object count from seeds
+``--seed, --seed + 1, ...`` (discarded ones skipped) and shared by all methods. Episodes run in
+``--workers`` processes (one simulator and planner per process, 1 torch thread each) or, with
+``--ray-address``, as Ray tasks on a cluster (``pip install ray``; the full 180 episodes per cell
+of the thesis). Pushes are predicted with the kinematic push model (no trained SQPD-Net weights
+ship with the repository). One PNG per shown episode (the first of each cell): camera image,
+f and f*g maps and the chosen action per step, written without a plotting library.
+
+    python -m benchmarks.search [--episodes N] [--objects 2 4 6 8] [--workers W] [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import struct
+import sys
+import time
+import zlib
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from typing import Any
+
+import numpy as np
+
+OUT = os.path.join(os.path.dirname(__file__), "results", "search.json")
+PNG_DIR = os.path.join(os.path.dirname(__file__), "results", "search_png")
+
+METHODS = {
+    "O-Search-and-Grasp": ("oracle", "search_and_grasp"),
+    "O-Search-for-Grasp": ("oracle", "search_for_grasp"),
+    "R-Search-and-Grasp": ("recognized", "search_and_grasp"),
+    "R-Search-for-Grasp": ("recognized", "search_for_grasp"),
+}
+THESIS = {  # Table 5.1: n -> (find succ, grasp succ, find steps, grasp steps)
+    "O-Search-and-Grasp": {
+        2: (0.978, 0.939, 1.392, 1.562),
+        4: (0.939, 0.761, 2.178, 2.635),
+        6: (0.878, 0.622, 2.589, 3.473),
+        8: (0.844, 0.528, 2.664, 3.947),
+    },
+    "O-Search-for-Grasp": {
+        2: (0.983, 0.928, 1.407, 1.647),
+        4: (0.933, 0.794, 2.077, 2.769),
+        6: (0.900, 0.678, 2.377, 3.574),
+        8: (0.889, 0.578, 2.831, 4.125),
+    },
+    "R-Search-and-Grasp": {
+        2: (0.983, 0.928, 1.362, 1.611),
+        4: (0.928, 0.789, 2.222, 2.739),
+        6: (0.889, 0.656, 2.581, 3.432),
+        8: (0.878, 0.606, 2.981, 3.78),
+    },
+    "R-Search-for-Grasp": {
+        2: (0.972, 0.922, 1.331, 1.651),
+        4: (0.933, 0.756, 2.196, 2.765),
+        6: (0.922, 0.672, 2.301, 3.281),
+        8: (0.894, 0.656, 2.901, 3.975),
+    },
+}
+
+
+def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    """95 % Wilson score interval of a success rate ``k / n``."""
+    if n == 0:
+        return (0.0, 1.0)
+    p = k / n
+    den = 1 + z * z / n
+    c = (p + z * z / (2 * n)) / den
+    h = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
+    return (max(0.0, c - h), min(1.0, c + h))
+
+
+# --- PNG without a plotting library ------------------------------------------------------------
+
+
+def write_png(path: str, rgb: np.ndarray) -> None:
+    """Write an ``(H, W, 3)`` uint8 image as PNG (zlib, no filter)."""
+    h, w, _ = rgb.shape
+    raw = b"".join(b"\x00" + rgb[y].astype(np.uint8).tobytes() for y in range(h))
+
+    def chunk(tag: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data))
+
+    png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
+    png += chunk(b"IDAT", zlib.compress(raw, 6)) + chunk(b"IEND", b"")
+    with open(path, "wb") as fh:
+        fh.write(png)
+
+
+def _map_image(m: np.ndarray, size: int, color: tuple[int, int, int]) -> np.ndarray:
+    """A grid map (n_x, n_y) as an image seen from above: x (depth) up, y (left) to the left."""
+    img = m[::-1, ::-1]  # far (large x) at the top, +y (left seen from the robot) left
+    v = np.clip(img, 0, 1)
+    cell = max(1, size // max(v.shape))
+    big = np.kron(v, np.ones((cell, cell)))
+    out = np.full((*big.shape, 3), 40, np.uint8)
+    for c in range(3):
+        out[..., c] = (40 + big * (color[c] - 40)).astype(np.uint8)
+    return out
+
+
+def _mark(img: np.ndarray, ij: tuple[float, float], shape, color) -> None:
+    cell = img.shape[0] // shape[0]
+    i = int((shape[0] - 1 - ij[0]) * cell + cell / 2)
+    j = int((shape[1] - 1 - ij[1]) * cell + cell / 2)
+    r = max(2, cell // 2)
+    img[max(0, i - r) : i + r, max(0, j - r) : j + r] = color
+
+
+def _pad(a: np.ndarray, h: int) -> np.ndarray:
+    return np.pad(a, ((0, h - a.shape[0]), (0, 4), (0, 0)))
+
+
+def episode_png(path: str, events: list, grid_xy0, resolution: float) -> None:
+    """Rows = steps: camera image | f map | f*g map, the action's start (white) and end
+    (yellow) marked on the maps (grid cells; pick: grasp -> place)."""
+    rows = []
+    for e in events:
+        rgb = e.rgb[::4, ::4] if e.rgb is not None else np.zeros((180, 320, 3), np.uint8)
+        h = rgb.shape[0]
+        f = _map_image(e.f_map, h, (80, 160, 255))
+        fg = _map_image(e.fg_map, h, (80, 255, 120))
+        shape = e.f_map.shape
+        p = e.params
+        pts = []
+        if e.action == "push":
+            s = np.asarray(p["start"])
+            pts = [s[:2], s[:2] + np.asarray(p["displacement"])[:2]]
+        elif e.action in ("pick_and_place",):
+            pts = [np.asarray(p["grasp_pose"])[:2, 3], np.asarray(p["place_pose"])[:2, 3]]
+        elif e.action == "grasp":
+            pts = [np.asarray(p["grasp_pose"])[:2, 3]]
+        for img in (f, fg):
+            for q, col in zip(pts, ((255, 255, 255), (255, 220, 0)), strict=False):
+                ij = ((q[0] - grid_xy0[0]) / resolution, (q[1] - grid_xy0[1]) / resolution)
+                _mark(img, ij, shape, col)
+        rows.append(np.concatenate([_pad(a, h) for a in (rgb, f, fg)], 1))
+    width = max(r.shape[1] for r in rows)
+    rows = [np.pad(r, ((0, 4), (0, width - r.shape[1]), (0, 0))) for r in rows]
+    write_png(path, np.concatenate(rows, 0))
+
+
+# --- workers ---------------------------------------------------------------------------------
+
+_STATE: dict[str, Any] = {}
+
+
+def _worker_init() -> None:
+    import torch
+
+    torch.set_num_threads(1)
+
+
+def run_episode(task: dict) -> dict:
+    """One episode (runs in a worker process or a Ray task)."""
+    import torch
+    from sqmanip.search import KinematicPushDynamics, SearchConfig, SearchPlanner
+    from sqmanip.search.episode import EpisodeRunner
+    from sqmanip.search.scenarios import ShelfScenario
+    from sqmanip.sim import Simulator
+
+    torch.set_num_threads(1)
+    if "sim" not in _STATE:
+        _STATE["sim"] = Simulator()
+        _STATE["planners"] = {}
+    sim = _STATE["sim"]
+    shapes, method = METHODS[task["method"]]
+    planner = _STATE["planners"].get(method)
+    if planner is None:
+        planner = SearchPlanner(KinematicPushDynamics(), None, SearchConfig(method=method))
+        _STATE["planners"][method] = planner
+    runner = EpisodeRunner(sim, planner, shapes=shapes, keep_images=bool(task.get("png")))
+    scenario = ShelfScenario.from_dict(task["scenario"])
+    t = time.perf_counter()
+    res = runner.run(scenario, seed=task["seed"])
+    wall = time.perf_counter() - t
+    plan = [e.timings_ms.get("plan_total", 0.0) for e in res.events]
+    if task.get("png"):
+        os.makedirs(os.path.dirname(task["png"]), exist_ok=True)
+        _, ev, _ = planner.models(runner.shelf, scenario.target, runner.camera)
+        episode_png(task["png"], res.events, ev.em.grid.xy[0].numpy(), ev.em.grid.resolution)
+    return {
+        "method": task["method"],
+        "n_objects": task["n_objects"],
+        "seed": scenario.seed,
+        "found": res.found,
+        "grasped": res.grasped,
+        "find_steps": res.find_steps,
+        "grasp_steps": res.grasp_steps,
+        "steps": res.steps,
+        "reason": res.reason,
+        "wall_s": wall,
+        "plan_ms_mean": float(np.mean(plan)) if plan else 0.0,
+        "plan_ms_max": float(np.max(plan)) if plan else 0.0,
+    }
+
+
+def _progress(k: int, total: int, r: dict, t0: float) -> None:
+    print(
+        f"  [{k}/{total} {time.perf_counter() - t0:5.0f} s] {r['method']} n={r['n_objects']} "
+        f"seed={r['seed']}: found={r['found']} grasped={r['grasped']} steps={r['steps']} "
+        f"({r['reason'][:60]})",
+        flush=True,
+    )
+
+
+def make_scenarios(n_objects: int, count: int, seed: int) -> list[dict]:
+    from sqmanip.search.scenarios import ScenarioBuilder
+
+    b = ScenarioBuilder()
+    out = [s.to_dict() for s in b.scenarios(n_objects, count, seed=seed + 1000 * n_objects)]
+    b.sim.close()
+    return out
+
+
+def time_f_g(repeat: int = 5) -> dict:
+    """Median ms of f and g over the whole pose grid for a 4-object scene (1 thread)."""
+    import torch
+    from sqmanip.search import (
+        KinematicPushDynamics,
+        SceneState,
+        SearchPlanner,
+        ShelfSpec,
+        TargetSpec,
+    )
+
+    from benchmarks.search_functions import scene, timed
+
+    torch.set_num_threads(1)
+    shelf, target = ShelfSpec(), TargetSpec.cylinder(0.03, 0.12)
+    planner = SearchPlanner(KinematicPushDynamics())
+    _, ev, _ = planner.models(shelf, target, shelf.camera())
+    s = SceneState.from_objects(scene(shelf))
+    f_med, f_min, _ = timed(lambda: ev.em.evaluate(s), repeat)
+    g_med, g_min, _ = timed(lambda: ev.gm.evaluate(s), repeat)
+    return {"f_ms": f_med, "f_min_ms": f_min, "g_ms": g_med, "g_min_ms": g_min}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--episodes", type=int, default=6, help="episodes per cell")
+    ap.add_argument("--objects", type=int, nargs="+", default=[2, 4, 6, 8])
+    ap.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
+    ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    ap.add_argument("--ray-address", default=None, help="run the episodes as Ray tasks")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--no-png", action="store_true")
+    ap.add_argument("--quick", action="store_true", help="2 episodes, 2 and 4 objects")
+    args = ap.parse_args(argv)
+    if args.quick:
+        args.episodes, args.objects = 2, [2, 4]
+    import torch
+
+    torch.set_num_threads(1)
+    print("command:", " ".join([sys.executable, "-m", "benchmarks.search", *sys.argv[1:]]))
+    print(
+        f"machine: {platform.processor() or platform.machine()}, cores={os.cpu_count()}, "
+        f"torch threads=1 per worker, workers={args.workers}, load={os.getloadavg()[0]:.1f}"
+    )
+    t0 = time.perf_counter()
+    timing = time_f_g()
+    print(
+        f"f over grid {timing['f_ms']:.1f} ms (thesis 13 ms, RTX 3090); g over grid "
+        f"{timing['g_ms']:.1f} ms (thesis 12.8 ms); 4-object scene, median of 5"
+    )
+    scen = {n: make_scenarios(n, args.episodes, args.seed) for n in args.objects}
+    print(
+        f"scenarios: { {n: len(v) for n, v in scen.items()} } in {time.perf_counter() - t0:.0f} s"
+    )
+    tasks = []
+    for n in args.objects:
+        for m in args.methods:
+            for k, sc in enumerate(scen[n]):
+                png = None
+                if k == 0 and not args.no_png:
+                    png = os.path.join(PNG_DIR, f"{m}_{n}obj_seed{sc['seed']}.png")
+                tasks.append(dict(method=m, n_objects=n, scenario=sc, seed=args.seed + k, png=png))
+    t1 = time.perf_counter()
+    if args.ray_address:
+        import ray
+
+        ray.init(address=args.ray_address)
+        remote = ray.remote(num_cpus=1)(run_episode)
+        results = ray.get([remote.remote(t) for t in tasks])
+    elif args.workers > 1:
+        with ProcessPoolExecutor(args.workers, initializer=_worker_init) as pool:
+            futures = [pool.submit(run_episode, t) for t in tasks]
+            for k, fut in enumerate(as_completed(futures)):
+                _progress(k + 1, len(tasks), fut.result(), t1)
+            results = [f.result() for f in futures]
+    else:
+        results = []
+        for k, t in enumerate(tasks):
+            results.append(run_episode(t))
+            _progress(k + 1, len(tasks), results[-1], t1)
+    wall = time.perf_counter() - t1
+
+    rows = []
+    head = (
+        f"{'method':20s} {'n':>2s} {'eps':>3s} {'find':>6s} {'95% CI':>13s} {'thesis':>6s} "
+        f"{'grasp':>6s} {'95% CI':>13s} {'thesis':>6s} {'f-steps':>7s} {'th':>5s} "
+        f"{'g-steps':>7s} {'th':>5s} {'plan ms':>8s}"
+    )
+    print(head)
+    for m in args.methods:
+        for n in args.objects:
+            rs = [r for r in results if r["method"] == m and r["n_objects"] == n]
+            N = len(rs)
+            kf = sum(r["found"] for r in rs)
+            kg = sum(r["grasped"] for r in rs)
+            fs = [r["find_steps"] for r in rs if r["found"]]
+            gs = [r["grasp_steps"] for r in rs if r["grasped"]]
+            th = THESIS[m][n] if n in THESIS[m] else (float("nan"),) * 4
+            row = dict(
+                method=m,
+                n_objects=n,
+                episodes=N,
+                find=kf / N if N else float("nan"),
+                find_ci=wilson(kf, N),
+                grasp=kg / N if N else float("nan"),
+                grasp_ci=wilson(kg, N),
+                find_steps=float(np.mean(fs)) if fs else float("nan"),
+                grasp_steps=float(np.mean(gs)) if gs else float("nan"),
+                plan_ms=float(np.mean([r["plan_ms_mean"] for r in rs])) if rs else float("nan"),
+                thesis=dict(find=th[0], grasp=th[1], find_steps=th[2], grasp_steps=th[3]),
+            )
+            rows.append(row)
+            print(
+                f"{m:20s} {n:2d} {N:3d} {row['find']:6.2f} "
+                f"[{row['find_ci'][0]:.2f}, {row['find_ci'][1]:.2f}] {th[0]:6.3f} "
+                f"{row['grasp']:6.2f} [{row['grasp_ci'][0]:.2f}, {row['grasp_ci'][1]:.2f}] "
+                f"{th[1]:6.3f} {row['find_steps']:7.2f} {th[2]:5.2f} {row['grasp_steps']:7.2f} "
+                f"{th[3]:5.2f} {row['plan_ms']:8.0f}"
+            )
+    reasons: dict[str, int] = {}
+    for r in results:
+        key = r["reason"].split(":")[0]
+        reasons[key] = reasons.get(key, 0) + 1
+    print(f"episode endings: {reasons}")
+    print(f"episodes: {len(results)} in {wall:.0f} s ({args.workers} workers)")
+    os.makedirs(os.path.dirname(OUT), exist_ok=True)
+    with open(OUT, "w") as fh:
+        json.dump(
+            dict(
+                args=vars(args),
+                timing=timing,
+                wall_s=wall,
+                rows=rows,
+                episodes=results,
+                endings=reasons,
+            ),
+            fh,
+            indent=2,
+        )
+    print("wrote", OUT, "and", PNG_DIR if not args.no_png else "(no PNG)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,341 @@
+"""Closed-loop shelf-search episodes in the simulator (Ch. 5.3, 5.5; Table 5.1).
+
+One episode: reset the simulator to a :class:`.scenarios.ShelfScenario`, then repeat at most
+``T = max_steps`` (10) times: observe with the shelf camera (1280 x 720); the target is *visible*
+when more than 100 of its pixels are in the segmentation image (5.5.1); recognize the
+surrounding objects (the target's pixels removed) -- ground-truth shapes for the oracle (O-)
+methods, the perception :class:`~sqmanip.perception.pipeline.Recognizer` on the point cloud for
+the R- methods; ask :meth:`SearchPlanner.decide` for the next action; execute the push or the
+pick-and-place in the simulator. When the planner answers ``grasp`` (visible and graspable) the
+target is grasped and lifted (``Simulator.grasp``); success means it is held. The take-out path
+is the reversed 30 cm approach, whose afterimage ``g`` already checked collision-free (C.3).
+
+Choices (ours): the target's pose, once visible, is the simulator's ground truth (the thesis
+estimates it from the segmented points; a red upright cylinder of known size); ``f`` is
+recomputed from each observation (no prior carried across real steps: an executed push may
+also move the target); a refused action (unreachable, colliding: ``PreconditionError``) counts
+as a step that changed nothing. An episode never raises for a scene without a solution: it ends
+with a reason (``no valid action``, ``step limit``, ``grasp failed``...).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable, Iterator
+from typing import Any, Literal
+
+import numpy as np
+import torch
+
+from sqmanip.errors import PreconditionError, SQManipError, ValidationError
+from sqmanip.geometry import Superquadric
+from sqmanip.sim import GRIPPER_MAX_WIDTH, Observation, Simulator
+
+from .actions import Push
+from .mpc import Decision, SearchPlanner
+from .scenarios import FOUND_PIXELS, SHELF_CAMERA, ShelfScenario, shelf_camera, shelf_spec
+
+Shapes = Literal["oracle", "recognized"]
+
+
+@dataclasses.dataclass
+class StepEvent:
+    """One step of an episode: what was seen and decided, and the executed action."""
+
+    step: int
+    """Actions executed before this observation (0 = initial scene)."""
+    action: str
+    """push | pick_and_place | grasp | none."""
+    params: dict[str, Any]
+    f_sum: float
+    """``|f| = sum_x f(x)`` over the pose grid."""
+    fg_sum: float
+    """``|f * g|``."""
+    visible: bool
+    graspable: bool
+    target_pixels: int
+    executed: bool
+    message: str
+    timings_ms: dict[str, float]
+    f_map: np.ndarray | None = None
+    fg_map: np.ndarray | None = None
+    rgb: np.ndarray | None = None
+
+
+@dataclasses.dataclass
+class EpisodeResult:
+    found: bool
+    grasped: bool
+    find_steps: int | None
+    """Actions executed before the target was first visible (None: never)."""
+    grasp_steps: int | None
+    """Actions before the successful grasp (the grasp itself not counted)."""
+    steps: int
+    reason: str
+    events: list[StepEvent]
+
+
+def _oracle_objects(obs: Observation, target_index: int) -> list[Superquadric]:
+    return [
+        o.superquadric for o in obs.objects if o.id != target_index and o.superquadric is not None
+    ]
+
+
+class EpisodeRunner:
+    """Runs search episodes in one simulator with one planner (see the module doc)."""
+
+    def __init__(
+        self,
+        sim: Simulator,
+        planner: SearchPlanner,
+        *,
+        shapes: Shapes = "oracle",
+        recognizer=None,
+        max_steps: int | None = None,
+        keep_images: bool = False,
+        grasp_width: float = GRIPPER_MAX_WIDTH,
+    ) -> None:
+        if shapes not in ("oracle", "recognized"):
+            raise ValidationError(f"shapes must be 'oracle' or 'recognized', got {shapes!r}")
+        self.sim, self.planner, self.shapes = sim, planner, shapes
+        if shapes == "recognized" and recognizer is None:
+            from sqmanip.perception.pipeline import Recognizer
+
+            recognizer = Recognizer()
+        self.recognizer = recognizer
+        self.max_steps = planner.config.max_steps if max_steps is None else int(max_steps)
+        self.keep_images = keep_images
+        self.grasp_width = float(grasp_width)
+        self.max_replans = 3
+        """Refused actions re-planned per step before a refusal counts as a step."""
+        self.shelf = shelf_spec(sim)
+        self.camera = shelf_camera(sim)
+
+    # --- perception ---------------------------------------------------------------------------
+
+    def recognize(self, obs: Observation, target_index: int) -> list[Superquadric]:
+        """Surrounding objects: ground truth (O-) or recognized from the cloud without the
+        target's points (R-; instance labels from the simulator's segmentation)."""
+        if self.shapes == "oracle":
+            return _oracle_objects(obs, target_index)
+        from sqmanip.perception.types import RecognizeOptions, RecognizeRequest, Workspace
+
+        s = self.shelf
+        labels = obs.point_labels.astype(np.int32)
+        keep = labels != target_index
+        pts, lab = obs.points[keep], labels[keep]
+        lab = np.where(lab >= 0, lab, -1).astype(np.int32)
+        ws = Workspace(
+            (s.front_x + 0.003, -s.inner_width / 2 + 0.003, s.bottom_z - 0.01),
+            (s.front_x + s.depth - 0.003, s.inner_width / 2 - 0.003, s.bottom_z + s.inner_height),
+        )
+        req = RecognizeRequest(
+            points=pts.astype(np.float32),
+            labels=lab,
+            viewpoint=obs.camera_pose[:3, 3].astype(np.float32),
+            workspace=ws,
+            options=RecognizeOptions(deformable=False, seed=0),
+        )
+        scene = self.recognizer.recognize(req)
+        return [_to_floor(p, s.bottom_z) for o in scene.objects for p in o.parts]
+
+    # --- episode ------------------------------------------------------------------------------
+
+    def run(
+        self,
+        scenario: ShelfScenario,
+        seed: int = 0,
+        on_event: Callable[[StepEvent], None] | None = None,
+    ) -> EpisodeResult:
+        events: list[StepEvent] = []
+        gen = self.events(scenario, seed)
+        while True:
+            try:
+                ev = next(gen)
+            except StopIteration as stop:
+                result: EpisodeResult = stop.value
+                result.events = events
+                return result
+            events.append(ev)
+            if on_event is not None:
+                on_event(ev)
+
+    def events(self, scenario: ShelfScenario, seed: int = 0) -> Iterator[StepEvent]:
+        """Yields a :class:`StepEvent` per step; returns the :class:`EpisodeResult`."""
+        sim, planner = self.sim, self.planner
+        sim.reset(scenario.scene)
+        ti = scenario.target_index
+        rng = np.random.default_rng(seed)
+        found_step: int | None = None
+        steps = 0
+        replans = 0
+        refused: set[tuple] = set()
+        while True:
+            times: dict[str, float] = {}
+            t = time.perf_counter()
+            obs = sim.observe("shelf", intrinsics=SHELF_CAMERA)
+            n_px = int((obs.segmentation == ti).sum())
+            visible = n_px > FOUND_PIXELS
+            if visible and found_step is None:
+                found_step = steps
+            target_state = obs.objects[ti]
+            times["observe"] = (time.perf_counter() - t) * 1e3
+            if target_state.pose[2, 2] < 0.9 or target_state.pose[2, 3] < self.shelf.bottom_z:
+                return self._end(found_step, None, steps, "target knocked over or off the shelf")
+            t = time.perf_counter()
+            try:
+                objects = self.recognize(obs, ti)
+            except SQManipError:  # nothing recognizable: plan with an empty scene
+                objects = []
+            times["recognize"] = (time.perf_counter() - t) * 1e3
+            d = planner.decide(
+                objects,
+                scenario.target,
+                self.shelf,
+                self.camera,
+                visible,
+                target_pose=target_state.pose if visible else None,
+                rng=rng,
+                reject=lambda a: (
+                    bool(refused)
+                    and (_action_key(a, "") in refused or _action_key(a, "grasp") in refused)
+                ),
+            )
+            times.update({f"plan_{k}": v for k, v in d.timings_ms.items()})
+            graspable = d.kind == "grasp"
+            base = dict(
+                step=steps,
+                action=d.kind,
+                params=_summary(d),
+                f_sum=float(d.f_map.sum()),
+                fg_sum=float(d.fg_map.sum()),
+                visible=visible,
+                graspable=graspable,
+                target_pixels=n_px,
+                f_map=d.f_map,
+                fg_map=d.fg_map,
+                rgb=obs.rgb if self.keep_images else None,
+            )
+            if graspable:
+                t = time.perf_counter()
+                ok, msg = self._grasp_target(d, scenario, target_state.pose)
+                times["execute"] = (time.perf_counter() - t) * 1e3
+                yield StepEvent(**base, executed=ok, message=msg, timings_ms=times)
+                if ok:
+                    return self._end(found_step, steps, steps, "target grasped and taken out")
+                return self._end(found_step, None, steps, f"grasp failed: {msg}")
+            if steps >= self.max_steps:
+                yield StepEvent(
+                    **base, executed=False, message="step limit reached", timings_ms=times
+                )
+                return self._end(found_step, None, steps, f"step limit ({self.max_steps}) reached")
+            if d.kind == "none":
+                yield StepEvent(**base, executed=False, message=d.reason, timings_ms=times)
+                return self._end(found_step, None, steps, f"no solution: {d.reason}")
+            t = time.perf_counter()
+            ok, msg = self._execute(d)
+            times["execute"] = (time.perf_counter() - t) * 1e3
+            if msg.startswith("refused") and replans < self.max_replans:
+                # the robot did not move: ban the action and plan again, no step counted
+                refused.add(_action_key(d.action, msg))
+                replans += 1
+                yield StepEvent(**base, executed=False, message=msg, timings_ms=times)
+                continue
+            yield StepEvent(**base, executed=ok, message=msg, timings_ms=times)
+            steps += 1
+            replans = 0
+            refused.clear()
+
+    def _end(self, found_step, grasp_step, steps, reason) -> EpisodeResult:
+        return EpisodeResult(
+            found=found_step is not None,
+            grasped=grasp_step is not None,
+            find_steps=found_step,
+            grasp_steps=grasp_step,
+            steps=steps,
+            reason=reason,
+            events=[],
+        )
+
+    def _execute(self, d: Decision) -> tuple[bool, str]:
+        p = d.params
+        try:
+            if d.kind == "push":
+                r = self.sim.push(np.asarray(p["start"]), np.asarray(p["displacement"]))
+            else:
+                r = self.sim.pick_and_place(
+                    np.asarray(p["grasp_pose"]), self.grasp_width, np.asarray(p["place_pose"])
+                )
+                if self.sim.get_state().held_object is not None:
+                    self.sim.release()
+        except (PreconditionError, ValidationError) as exc:
+            return False, f"refused: {exc}"
+        return bool(r.success), r.message
+
+    def _grasp_target(
+        self, d: Decision, scenario: ShelfScenario, target_pose: np.ndarray
+    ) -> tuple[bool, str]:
+        """Grasp the target with the planner's best grasp, then the other candidates of its
+        pose, highest first, until the simulator accepts one: it checks reachability and
+        collisions of the whole robot with the shelf and the objects itself (its hand and arm are
+        bulkier than the planner's gripper and links 6-7, and its approach is 10 cm, not 30)."""
+        _, ev, _ = self.planner.models(self.shelf, scenario.target, self.camera)
+        i = int(d.params["grid_index"])
+        T, valid = ev.gm.grasp_poses(torch.tensor([i]))
+        poses = [np.asarray(d.params["grasp_pose"])]
+        poses += [T[0, k].double().numpy() for k in range(T.shape[1]) if bool(valid[0, k])]
+        # the grasps belong to the nearest grid pose: move them onto the observed target
+        shift = np.zeros(3)
+        shift[:2] = target_pose[:2, 3] - ev.em.grid.xy[i].double().numpy()
+        poses = [np.concatenate([p[:3, :3], (p[:3, 3] + shift)[:, None]], 1) for p in poses]
+        poses = [np.vstack([p, [0.0, 0.0, 0.0, 1.0]]) for p in poses]
+        # highest first: the hand then keeps farthest from the floor board (the best stays first)
+        poses = poses[:1] + sorted(poses[1:], key=lambda p: -p[2, 3])
+        last = "no grasp candidate"
+        for pose in poses[:21]:
+            try:
+                r = self.sim.grasp(pose, self.grasp_width)
+            except (PreconditionError, ValidationError) as exc:
+                last = f"refused ({len(poses[:21])} grasps tried; last: {exc})"
+                continue
+            return bool(r.success), r.message
+        return False, last
+
+
+def _to_floor(part: Superquadric, floor_z: float) -> Superquadric:
+    """Objects stand on the shelf floor (Ch. 5: no stacking): a recognized shape whose bottom
+    floats above the floor (only its top was seen over an occluder) is extended down to it along
+    its most vertical axis (when that axis is within 25 deg of vertical)."""
+    T = np.asarray(part.pose, np.float64)
+    a = np.abs(np.asarray(part.size, np.float64))
+    col = np.abs(T[2, :3])
+    gap = T[2, 3] - float(col @ a) - floor_z
+    j = int(np.argmax(col))
+    if gap <= 0.005 or col[j] < 0.9 or part.kind != "superellipsoid":
+        return part
+    size = a.copy()
+    size[j] += gap / 2 / col[j]
+    pose = T.copy()
+    pose[2, 3] -= gap / 2
+    return dataclasses.replace(part, size=tuple(float(v) for v in size), pose=pose)
+
+
+def _action_key(a, message: str) -> tuple:
+    """Identity of an action for the refused set: a push by its start and direction; a
+    pick-and-place by its grasp (when the grasp part was refused) or its grasp and place."""
+    if a is None:
+        return ("none",)
+    if isinstance(a, Push):
+        return ("push", *np.round(a.start, 2).tolist(), a.direction)
+    g = tuple(np.round(a.grasp_pose[:3, 3], 2).tolist())
+    if "grasp" in message or "lift" in message:
+        return ("pick", *g)
+    return ("place", *g, *np.round(a.place_pose[:2, 3], 2).tolist())
+
+
+def _summary(d: Decision) -> dict[str, Any]:
+    out: dict[str, Any] = {"objective": float(d.objective), "reason": d.reason}
+    for k, v in d.params.items():
+        out[k] = v.tolist() if isinstance(v, np.ndarray) else v
+    return out
