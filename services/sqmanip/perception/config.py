@@ -46,6 +46,9 @@ class PerceptionSettings(BaseSettings):
     concavity_tolerance: float = Field(0.12, ge=0)
     """An edge is concave if ``(n_i - n_j) . (x_i - x_j) / |x_i - x_j| < -tolerance``."""
     normal_neighbors: int = Field(10, ge=3)
+    part_contact: float = Field(0.01, ge=0)
+    """A segment whose lowest point is farther than this above the support plane (m) does not
+    stand on it: it becomes a part of the object it rests on (a bottle's neck, a mug's handle)."""
 
     # --- fitting --------------------------------------------------------------------------------
     fit_iterations: int = Field(40, ge=1)

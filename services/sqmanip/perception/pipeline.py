@@ -21,7 +21,7 @@ from .config import PerceptionSettings
 from .fit import fit_segments
 from .mvbb import mvbb_fit
 from .preprocess import crop_mask, fit_plane_ransac, resample
-from .segment import cluster, segments_from_labels
+from .segment import cluster_with_groups, segments_from_labels
 from .types import RecognizedObject, RecognizeRequest, Scene
 from .validate import validate_request
 
@@ -41,6 +41,38 @@ def _residual(points: np.ndarray, part) -> float:
     local = x @ T[:3, :3].T + T[:3, 3]
     d = radial_distance(local, torch.as_tensor(part.params(), dtype=torch.float64))
     return float((d**2).mean())
+
+
+def _group_parts(
+    points: np.ndarray,
+    segments: list[np.ndarray],
+    clusters: list[int],
+    plane,
+    contact: float,
+) -> list[int]:
+    """Object id per segment: a segment that does not reach the support plane is a part of the
+    object it rests on (the largest segment cut from the same Euclidean cluster that does), so a
+    bottle's neck or a mug's handle become parts of one object while touching objects, which
+    both stand on the plane, stay apart. Without a plane every segment is its own object."""
+    groups = list(range(len(segments)))
+    if plane is None:
+        return groups
+    grounded = [float(plane.signed_distance(points[seg]).min()) <= contact for seg in segments]
+    for i, cl in enumerate(clusters):  # segments are sorted largest first
+        if grounded[i]:
+            continue
+        base = next((j for j, c in enumerate(clusters) if c == cl and grounded[j]), None)
+        if base is not None:
+            groups[i] = groups[base]
+    return groups
+
+
+def _members(groups: list[int]) -> list[list[int]]:
+    """Segment indices per object, objects in order of their first (largest) segment."""
+    out: dict[int, list[int]] = {}
+    for i, g in enumerate(groups):
+        out.setdefault(g, []).append(i)
+    return list(out.values())
 
 
 class Recognizer:
@@ -99,8 +131,10 @@ class Recognizer:
         obj_pts = points[object_idx].astype(np.float64)
         if valid.labels is not None:
             local_segments = segments_from_labels(valid.labels[object_idx], MIN_FIT_POINTS)
+            groups = list(range(len(local_segments)))
         else:
-            local_segments = cluster(obj_pts, s, valid.viewpoint)
+            local_segments, clusters = cluster_with_groups(obj_pts, s, valid.viewpoint)
+            groups = _group_parts(obj_pts, local_segments, clusters, plane, s.part_contact)
         segments = [object_idx[seg] for seg in local_segments]
         t_seg = time.perf_counter() - t0
 
@@ -139,14 +173,17 @@ class Recognizer:
         t_fit = time.perf_counter() - t0
 
         objects = []
-        for i, (idx, part, res) in enumerate(zip(segments, parts, residuals, strict=True)):
+        for i, members in enumerate(_members(groups)):
+            idx = np.concatenate([segments[m] for m in members])
+            counts = np.array([len(segments[m]) for m in members], dtype=np.float64)
+            res = float(np.average([residuals[m] for m in members], weights=counts))
             color = None
             if valid.colors is not None:
                 color = tuple(float(c) for c in valid.colors[idx].mean(0, dtype=np.float64))
             objects.append(
                 RecognizedObject(
                     id=i,
-                    parts=[part],
+                    parts=[parts[m] for m in members],
                     point_indices=idx.astype(np.int64),
                     mean_color=color,
                     residual=res,

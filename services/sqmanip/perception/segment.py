@@ -82,14 +82,24 @@ def cluster(
     viewpoint: np.ndarray | None = None,
 ) -> list[np.ndarray]:
     """Segments of ``points (N, 3)`` as index arrays, largest first (see module docstring)."""
+    return cluster_with_groups(points, settings, viewpoint)[0]
+
+
+def cluster_with_groups(
+    points: np.ndarray,
+    settings: PerceptionSettings,
+    viewpoint: np.ndarray | None = None,
+) -> tuple[list[np.ndarray], list[int]]:
+    """:func:`cluster`, plus for each segment the id of the Euclidean cluster it was cut from
+    (segments split at a concave edge share it: the parts of one object, or touching objects)."""
     if len(points) == 0:
-        return []
+        return [], []
     rep, inverse = voxel_downsample(points, settings.cluster_voxel)
     x = points[rep].astype(np.float64)
     weight = np.bincount(inverse, minlength=len(rep)).astype(np.float64)
     tree = cKDTree(x)
     edges = tree.query_pairs(settings.cluster_radius, output_type="ndarray")
-    labels = _components(len(x), edges)
+    labels = euclidean = _components(len(x), edges)
     if settings.split_touching and len(edges) and len(x) >= 3:
         nrm = estimate_normals(x, settings.normal_neighbors, viewpoint, tree)
         split = _split_concave(x, edges, weight, nrm, settings)
@@ -97,9 +107,10 @@ def cluster(
         labels = np.unique(labels * (split.max() + 1) + split, return_inverse=True)[1].reshape(-1)
     point_labels = labels[inverse]
     counts = np.bincount(point_labels)
-    order = np.argsort(-counts, kind="stable")
-    return [
-        np.flatnonzero(point_labels == lab)
-        for lab in order
+    order = [
+        lab
+        for lab in np.argsort(-counts, kind="stable")
         if counts[lab] >= settings.min_cluster_points
     ]
+    segments = [np.flatnonzero(point_labels == lab) for lab in order]
+    return segments, [int(euclidean[inverse[seg[0]]]) for seg in segments]

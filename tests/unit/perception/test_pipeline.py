@@ -72,3 +72,35 @@ def test_network_methods_are_reported_unimplemented_and_bad_input_rejected(scene
             )
     with pytest.raises(ValidationError, match="points"):
         Recognizer().recognize(RecognizeRequest(np.full((3, 3), np.nan)))
+
+
+def test_a_part_resting_on_another_segment_joins_its_object():
+    """A bottle-like stack (wide body on the table, narrow neck on top, split at the concave
+    shoulder) is one object with two parts; a separate box on the table stays its own object."""
+    from sqmanip.geometry import Superquadric, sample_parts
+
+    def at(x, y, z):
+        pose = np.eye(4)
+        pose[:3, 3] = (x, y, z)
+        return pose
+
+    body = Superquadric((0.035, 0.035, 0.06), (0.2, 1.0), at(0.0, 0.0, 0.06))
+    neck = Superquadric((0.012, 0.012, 0.03), (0.2, 1.0), at(0.0, 0.0, 0.15))
+    box = Superquadric((0.03, 0.03, 0.04), (0.2, 0.2), at(0.2, 0.0, 0.04))
+    eye = np.array([0.6, 0.0, 0.6])
+    pts, nrm, _ = sample_parts([body, neck, box], 6000, generator=0)
+    pts, nrm = np.asarray(pts), np.asarray(nrm)
+    inside_other = np.zeros(len(pts), dtype=bool)
+    for part in (body, neck):  # drop the body's cap under the neck and the neck's bottom
+        local = pts - part.pose[:3, 3]
+        a1, _, a3 = part.size
+        inside_other |= (np.hypot(local[:, 0], local[:, 1]) < a1 - 1e-3) & (
+            abs(local[:, 2]) < a3 - 1e-3
+        )
+    seen = ((eye - pts) * nrm).sum(-1) > 0
+    xy = np.random.default_rng(0).uniform(-0.3, 0.4, size=(4000, 2))
+    table = np.column_stack([xy, np.zeros(len(xy))])
+    cloud = np.concatenate([pts[seen & ~inside_other], table]).astype(np.float32)
+    scene = Recognizer().recognize(RecognizeRequest(cloud, viewpoint=eye))
+    by_parts = sorted(len(o.parts) for o in scene.objects)
+    assert by_parts == [1, 2], [(len(o.parts), len(o.point_indices)) for o in scene.objects]
