@@ -33,7 +33,6 @@ before raising it.
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import concurrent.futures
 import dataclasses
@@ -58,7 +57,7 @@ from sqmanip.errors import (
     ValidationError,
 )
 from sqmanip.rpc import convert
-from sqmanip.rpc.server import configure_logging, serve
+from sqmanip.rpc.server import configure_logging, run_service, service_parser
 from sqmanip.settings import StackSettings, get_settings
 from sqmanip.v1 import dynamics_pb2, dynamics_pb2_grpc
 
@@ -321,11 +320,7 @@ def bench_threads(repeats: int = 200) -> dict[str, float]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m sqmanip.dynamics.server", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
-    parser.add_argument("--host", default=None, help="bind address (default: settings.host)")
-    parser.add_argument("--port", type=int, default=None, help="default: settings.dynamics_port")
-    parser.add_argument("--log-level", default="INFO")
+    parser = service_parser("dynamics", "sqmanip.dynamics.server", __doc__)
     parser.add_argument("--bench-threads", action="store_true",
                         help="measure 1 vs 2 torch threads alone and contended, then exit")  # fmt: skip
     args = parser.parse_args(argv)
@@ -348,14 +343,9 @@ def main(argv: list[str] | None = None) -> int:
         log.warning("no SQPD-Net checkpoint at %s: model 'sqpdnet' answers FAILED_PRECONDITION",
                     model_dir)  # fmt: skip
     log.info("dynamics: model_dir=%s torch_threads=%d", model_dir, service.torch_threads)
-    port = args.port if args.port is not None else settings.dynamics_port
-    try:
-        asyncio.run(
-            serve(registrar(servicer), settings, name="dynamics", host=args.host, port=port)
-        )
-    finally:
-        servicer.close()
-    return 0
+    return run_service(
+        servicer, registrar(servicer), settings, name="dynamics", host=args.host, port=args.port
+    )
 
 
 if __name__ == "__main__":

@@ -29,7 +29,6 @@ shares the same few cores.
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import concurrent.futures
 import logging
@@ -42,7 +41,7 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from sqmanip.errors import ResourceExhaustedError
 from sqmanip.rpc import convert
-from sqmanip.rpc.server import configure_logging, serve
+from sqmanip.rpc.server import configure_logging, run_service, service_parser
 from sqmanip.settings import StackSettings, get_settings
 from sqmanip.v1 import grasp_pb2, grasp_pb2_grpc
 
@@ -134,12 +133,8 @@ def registrar(servicer: GraspPlannerServicer):
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m sqmanip.grasping.server", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
-    parser.add_argument("--host", default=None, help="bind address (default: settings.host)")
-    parser.add_argument("--port", type=int, default=None, help="default: settings.grasp_port")
+    parser = service_parser("grasp", "sqmanip.grasping.server", __doc__)
     parser.add_argument("--max-queue", type=int, default=None, help="waiting requests before 429")
-    parser.add_argument("--log-level", default="INFO")
     args = parser.parse_args(argv)
     configure_logging(args.log_level)
     settings: StackSettings = get_settings()
@@ -155,12 +150,9 @@ def main(argv: list[str] | None = None) -> int:
     )  # fmt: skip
     max_queue = args.max_queue if args.max_queue is not None else service.max_queue
     servicer = GraspPlannerServicer(planner, max_queue=max_queue)
-    port = args.port if args.port is not None else settings.grasp_port
-    try:
-        asyncio.run(serve(registrar(servicer), settings, name="grasp", host=args.host, port=port))
-    finally:
-        servicer.close()
-    return 0
+    return run_service(
+        servicer, registrar(servicer), settings, name="grasp", host=args.host, port=args.port
+    )
 
 
 if __name__ == "__main__":

@@ -10,7 +10,6 @@ When Zenoh is enabled (``SQMANIP_ZENOH_ENABLED``), each recognized scene is also
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import concurrent.futures
 import logging
@@ -22,7 +21,7 @@ import grpc
 from sqmanip.errors import ResourceExhaustedError
 from sqmanip.perception.types import RecognizeRequest, Scene
 from sqmanip.rpc import convert
-from sqmanip.rpc.server import configure_logging, serve
+from sqmanip.rpc.server import configure_logging, run_service, service_parser
 from sqmanip.settings import StackSettings, get_settings
 from sqmanip.v1 import perception_pb2, perception_pb2_grpc
 
@@ -81,14 +80,9 @@ def registrar(servicer: PerceptionServicer):
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m sqmanip.perception.server", description=__doc__
-    )
-    parser.add_argument("--host", default=None, help="bind address (default: settings.host)")
-    parser.add_argument("--port", type=int, default=None, help="default: settings.perception_port")
+    parser = service_parser("perception", "sqmanip.perception.server", __doc__)
     parser.add_argument("--workers", type=int, default=1, help="recognition threads (default 1)")
     parser.add_argument("--max-queue", type=int, default=16, help="waiting requests before 429")
-    parser.add_argument("--log-level", default="INFO")
     args = parser.parse_args(argv)
     configure_logging(args.log_level)
     settings: StackSettings = get_settings()
@@ -107,23 +101,19 @@ def main(argv: list[str] | None = None) -> int:
             servicer.publisher = streams.Publisher(session, streams.SCENE_KEY)
             log.info("publishing scenes on zenoh key %s", streams.SCENE_KEY)
 
-    port = args.port if args.port is not None else settings.perception_port
     try:
-        asyncio.run(
-            serve(
-                registrar(servicer),
-                settings,
-                name="perception",
-                host=args.host,
-                port=port,
-                on_started=on_started,
-            )
+        return run_service(
+            servicer,
+            registrar(servicer),
+            settings,
+            name="perception",
+            host=args.host,
+            port=args.port,
+            on_started=on_started,
         )
     finally:
-        servicer.close()
         if session is not None:
             session.close()
-    return 0
 
 
 if __name__ == "__main__":

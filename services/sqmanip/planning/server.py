@@ -24,7 +24,6 @@ The physics model (PyBullet re-simulation, ~1 s per push) takes at most
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import concurrent.futures
 import logging
@@ -48,7 +47,7 @@ from sqmanip.errors import (
 from sqmanip.rpc import convert
 from sqmanip.rpc.client import RemoteDynamics, RemoteRecognizer, RemoteSimulator
 from sqmanip.rpc.errors import status_for
-from sqmanip.rpc.server import configure_logging, serve
+from sqmanip.rpc.server import configure_logging, run_service, service_parser
 from sqmanip.settings import StackSettings, get_settings
 from sqmanip.v1 import planner_pb2, planner_pb2_grpc
 
@@ -392,11 +391,7 @@ def registrar(servicer: PlannerServicer):
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m sqmanip.planning.server", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
-    parser.add_argument("--host", default=None, help="bind address (default: settings.host)")
-    parser.add_argument("--port", type=int, default=None, help="default: settings.mpc_port")
-    parser.add_argument("--log-level", default="INFO")
+    parser = service_parser("mpc", "sqmanip.planning.server", __doc__)
     args = parser.parse_args(argv)
     configure_logging(args.log_level)
     import torch
@@ -404,25 +399,19 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(1)
     settings = get_settings()
     servicer = PlannerServicer(settings)
-    port = args.port if args.port is not None else settings.mpc_port
 
     def started(_running) -> None:
         servicer.publisher.open(settings)  # after start-up, never before a fork
 
-    try:
-        asyncio.run(
-            serve(
-                registrar(servicer),
-                settings,
-                name="mpc",
-                host=args.host,
-                port=port,
-                on_started=started,
-            )  # fmt: skip
-        )
-    finally:
-        servicer.close()
-    return 0
+    return run_service(
+        servicer,
+        registrar(servicer),
+        settings,
+        name="mpc",
+        host=args.host,
+        port=args.port,
+        on_started=started,
+    )
 
 
 if __name__ == "__main__":

@@ -8,6 +8,7 @@ stops gracefully on SIGTERM/SIGINT (health NOT_SERVING first, then ``stop(grace)
 
 from __future__ import annotations
 
+import argparse
 import asyncio
 import dataclasses
 import logging
@@ -112,6 +113,42 @@ async def serve(
     await running.stop(grace)
     for task in (waiter, stopper):
         task.cancel()
+
+
+def service_parser(name: str, module: str, description: str | None) -> argparse.ArgumentParser:
+    """Command line every service shares: ``--host``, ``--port`` (default: the stack's port for
+    ``name``) and ``--log-level``; services add their own options to it."""
+    parser = argparse.ArgumentParser(
+        prog=f"python -m {module}",
+        description=description,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--host", default=None, help="bind address (default: settings.host)")
+    parser.add_argument("--port", type=int, default=None, help=f"default: settings.{name}_port")
+    parser.add_argument("--log-level", default="INFO")
+    return parser
+
+
+def run_service(
+    servicer,
+    register: Register,
+    settings: StackSettings,
+    *,
+    name: str,
+    host: str | None,
+    port: int | None,
+    on_started: Callable[[RunningServer], None] | None = None,
+) -> int:
+    """Serve ``name`` until SIGTERM/SIGINT, then ``servicer.close()`` (its worker threads);
+    ``port`` None takes the stack's port for ``name``."""
+    port = settings.port(name) if port is None else port
+    try:
+        asyncio.run(
+            serve(register, settings, name=name, host=host, port=port, on_started=on_started)
+        )
+    finally:
+        servicer.close()
+    return 0
 
 
 def configure_logging(level: str = "INFO") -> None:

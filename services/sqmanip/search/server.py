@@ -23,8 +23,6 @@
 
 from __future__ import annotations
 
-import argparse
-import asyncio
 import json
 import logging
 import sys
@@ -50,7 +48,7 @@ from sqmanip.planning.server import (
 )
 from sqmanip.rpc import convert
 from sqmanip.rpc.client import RemoteDynamics, RemoteRecognizer, RemoteSimulator
-from sqmanip.rpc.server import configure_logging, serve
+from sqmanip.rpc.server import configure_logging, run_service, service_parser
 from sqmanip.settings import StackSettings, get_settings
 from sqmanip.v1 import search_pb2, search_pb2_grpc
 
@@ -356,11 +354,7 @@ def registrar(servicer: SearchServicer):
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m sqmanip.search.server", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
-    parser.add_argument("--host", default=None, help="bind address (default: settings.host)")
-    parser.add_argument("--port", type=int, default=None, help="default: settings.search_port")
-    parser.add_argument("--log-level", default="INFO")
+    parser = service_parser("search", "sqmanip.search.server", __doc__)
     args = parser.parse_args(argv)
     configure_logging(args.log_level)
     import torch
@@ -368,25 +362,19 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(1)
     settings = get_settings()
     servicer = SearchServicer(settings)
-    port = args.port if args.port is not None else settings.search_port
 
     def started(_running) -> None:
         servicer.publisher.open(settings)
 
-    try:
-        asyncio.run(
-            serve(
-                registrar(servicer),
-                settings,
-                name="search",
-                host=args.host,
-                port=port,
-                on_started=started,
-            )  # fmt: skip
-        )
-    finally:
-        servicer.close()
-    return 0
+    return run_service(
+        servicer,
+        registrar(servicer),
+        settings,
+        name="search",
+        host=args.host,
+        port=args.port,
+        on_started=started,
+    )
 
 
 if __name__ == "__main__":

@@ -16,7 +16,6 @@ never from the event loop.
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import concurrent.futures
 import logging
@@ -28,7 +27,7 @@ import grpc
 
 from sqmanip.errors import ResourceExhaustedError, ValidationError
 from sqmanip.rpc import convert
-from sqmanip.rpc.server import configure_logging, serve
+from sqmanip.rpc.server import configure_logging, run_service, service_parser
 from sqmanip.settings import StackSettings, get_settings
 from sqmanip.v1 import sim_pb2, sim_pb2_grpc
 
@@ -165,11 +164,8 @@ def registrar(servicer: SimulatorServicer):
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m sqmanip.sim.server", description=__doc__)
-    parser.add_argument("--host", default=None, help="bind address (default: settings.host)")
-    parser.add_argument("--port", type=int, default=None, help="default: settings.sim_port")
+    parser = service_parser("sim", "sqmanip.sim.server", __doc__)
     parser.add_argument("--max-queue", type=int, default=16, help="waiting requests before 429")
-    parser.add_argument("--log-level", default="INFO")
     args = parser.parse_args(argv)
     configure_logging(args.log_level)
     settings: StackSettings = get_settings()
@@ -188,23 +184,19 @@ def main(argv: list[str] | None = None) -> int:
             servicer.publisher = streams.Publisher(session, OBSERVATION_KEY)
             log.info("publishing observations on zenoh key %s", OBSERVATION_KEY)
 
-    port = args.port if args.port is not None else settings.sim_port
     try:
-        asyncio.run(
-            serve(
-                registrar(servicer),
-                settings,
-                name="sim",
-                host=args.host,
-                port=port,
-                on_started=on_started,
-            )
+        return run_service(
+            servicer,
+            registrar(servicer),
+            settings,
+            name="sim",
+            host=args.host,
+            port=args.port,
+            on_started=on_started,
         )
     finally:
-        servicer.close()
         if session is not None:
             session.close()
-    return 0
 
 
 if __name__ == "__main__":
