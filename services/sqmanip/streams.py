@@ -51,37 +51,72 @@ def make_config(
     return cfg
 
 
-def open_session(settings: StackSettings | None = None) -> zenoh.Session | None:
-    """A client session connected to the stack's router, or None when Zenoh is disabled or the
-    router cannot be reached (logged; the service keeps answering gRPC without streaming)."""
-    settings = settings or get_settings()
-    if not settings.zenoh_enabled:
-        return None
-    try:
-        return zenoh.open(make_config("client", connect=[settings.zenoh_endpoint]))
-    except zenoh.ZError as exc:
-        log.warning("zenoh router %s unreachable, streaming off: %s", settings.zenoh_endpoint, exc)
-        return None
-
-
 class Publisher:
-    """Publishes serialized protobuf messages on one key; ``publish`` never blocks for long
-    (congestion control DROP: a slow subscriber loses samples instead of stalling a service)."""
+    """Publishes serialized protobuf messages on one key from any thread, best effort.
 
-    def __init__(self, session: zenoh.Session, key: str) -> None:
+    :meth:`open` connects in a background thread and retries until the router answers, so a
+    service that starts before its router (launcher, compose) still streams once it is up.
+    Until then, and whenever a put fails, :meth:`publish` drops the message: gRPC answered
+    already, and a slow subscriber must never stall a service (congestion control DROP).
+    """
+
+    def __init__(self, key: str, retry_s: float = 1.0) -> None:
         self.key = key
-        self._pub = session.declare_publisher(
-            key,
-            encoding=zenoh.Encoding.APPLICATION_PROTOBUF,
-            congestion_control=zenoh.CongestionControl.DROP,
-        )
+        self._retry_s = retry_s
+        self._session: zenoh.Session | None = None
+        self._pub: Any = None
+        self._closed = threading.Event()
+
+    @property
+    def connected(self) -> bool:
+        return self._pub is not None
+
+    def open(self, settings: StackSettings | None = None) -> None:
+        """Connect (now or later, in a daemon thread); a no-op when Zenoh is disabled."""
+        settings = settings or get_settings()
+        if settings.zenoh_enabled:
+            threading.Thread(
+                target=self._connect,
+                args=(settings.zenoh_endpoint,),
+                name="zenoh-connect",
+                daemon=True,
+            ).start()
+
+    def _connect(self, endpoint: str) -> None:
+        warned = False
+        while not self._closed.is_set():
+            try:
+                session = zenoh.open(make_config("client", connect=[endpoint]))
+            except zenoh.ZError as exc:
+                if not warned:
+                    log.warning("zenoh router %s unreachable, retrying: %s", endpoint, exc)
+                    warned = True
+                self._closed.wait(self._retry_s)
+                continue
+            self._session = session
+            self._pub = session.declare_publisher(
+                self.key,
+                encoding=zenoh.Encoding.APPLICATION_PROTOBUF,
+                congestion_control=zenoh.CongestionControl.DROP,
+            )
+            log.info("publishing on zenoh key %s via %s", self.key, endpoint)
+            return
 
     def publish(self, message: Any) -> None:
-        """Serialize a protobuf ``message`` and put it."""
-        self._pub.put(zenoh.ZBytes(message.SerializeToString()))
+        """Serialize a protobuf ``message`` and put it (dropped when not connected)."""
+        pub = self._pub
+        if pub is None:
+            return
+        try:
+            pub.put(zenoh.ZBytes(message.SerializeToString()))
+        except Exception:  # noqa: BLE001 - streaming is best effort
+            log.debug("zenoh put on %s failed", self.key, exc_info=True)
 
     def close(self) -> None:
-        self._pub.undeclare()
+        self._closed.set()
+        if self._session is not None:
+            with contextlib.suppress(Exception):
+                self._session.close()
 
 
 class Subscription:

@@ -5,9 +5,10 @@ One stack serves the whole module."""
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
-import time
+import queue
 
 import httpx
 import numpy as np
@@ -161,9 +162,13 @@ def test_zenoh_subscriber_receives_an_observation(stack, client) -> None:
     settings = stack.settings  # the stack's router endpoint; client mode, multicast off
     session, sub = streams.subscribe(OBSERVATION_KEY, settings)
     try:
-        time.sleep(0.3)  # let the subscription reach the router
-        obs = client.sim_observe(width=320, height=288, arrays=False)
-        key, payload = sub.get(timeout=15)
+        for _ in range(10):  # until the subscription has reached the sim's publisher
+            obs = client.sim_observe(width=320, height=288, arrays=False)
+            with contextlib.suppress(queue.Empty):
+                key, payload = sub.get(timeout=2)
+                break
+        else:
+            pytest.fail("no observation on Zenoh after 10 observes")
     finally:
         sub.close()
         session.close()

@@ -1,5 +1,7 @@
 """The launcher's supervision, Zenoh publication and health, on real processes (fast: MVBB)."""
 
+import contextlib
+import queue
 import signal
 import threading
 import time
@@ -26,9 +28,13 @@ def test_zenoh_subscriber_receives_the_recognized_scene(scene) -> None:
     with running_stack(services=("perception",), zenoh=True) as stack:
         session, sub = streams.subscribe(streams.SCENE_KEY, stack.settings)
         try:
-            time.sleep(0.3)  # let the subscription reach the router
-            result = sdk.Client(stack.gateway_url).recognize(scene.points, method="mvbb")
-            key, payload = sub.get(timeout=10)
+            for _ in range(10):  # until the subscription has reached perception's publisher
+                result = sdk.Client(stack.gateway_url).recognize(scene.points, method="mvbb")
+                with contextlib.suppress(queue.Empty):
+                    key, payload = sub.get(timeout=2)
+                    break
+            else:
+                pytest.fail("no scene on Zenoh after 10 recognitions")
         finally:
             sub.close()
             session.close()

@@ -90,16 +90,13 @@ def main(argv: list[str] | None = None) -> int:
     from sqmanip.perception.pipeline import Recognizer  # heavy (torch): after arg parsing
 
     servicer = PerceptionServicer(Recognizer(), workers=args.workers, max_queue=args.max_queue)
-    session = None
+    from sqmanip import streams
+
+    publisher = streams.Publisher(streams.SCENE_KEY)
+    servicer.publisher = publisher  # drops messages until the router answers
 
     def on_started(_running) -> None:
-        nonlocal session
-        from sqmanip import streams
-
-        session = streams.open_session(settings)  # after start-up: no fork follows
-        if session is not None:
-            servicer.publisher = streams.Publisher(session, streams.SCENE_KEY)
-            log.info("publishing scenes on zenoh key %s", streams.SCENE_KEY)
+        publisher.open(settings)  # after start-up: no fork follows
 
     try:
         return run_service(
@@ -112,8 +109,7 @@ def main(argv: list[str] | None = None) -> int:
             on_started=on_started,
         )
     finally:
-        if session is not None:
-            session.close()
+        publisher.close()
 
 
 if __name__ == "__main__":

@@ -49,6 +49,7 @@ from sqmanip.rpc.client import RemoteDynamics, RemoteRecognizer, RemoteSimulator
 from sqmanip.rpc.errors import status_for
 from sqmanip.rpc.server import configure_logging, run_service, service_parser
 from sqmanip.settings import StackSettings, get_settings
+from sqmanip.streams import Publisher
 from sqmanip.v1 import planner_pb2, planner_pb2_grpc
 
 log = logging.getLogger("sqmanip.planning.server")
@@ -210,29 +211,6 @@ async def stream_generator(
         lane.release()
 
 
-class ZenohPublisher:
-    """Publishes on one key from any thread; a no-op without a session."""
-
-    def __init__(self, key: str) -> None:
-        self.key = key
-        self._pub = None
-
-    def open(self, settings: StackSettings) -> None:
-        from sqmanip.streams import Publisher, open_session
-
-        session = open_session(settings)
-        if session is not None:
-            self._session = session
-            self._pub = Publisher(session, self.key)
-
-    def publish(self, message: Any) -> None:
-        if self._pub is not None:
-            try:
-                self._pub.publish(message)
-            except Exception:  # noqa: BLE001 - streaming is best effort
-                log.debug("zenoh publish on %s failed", self.key, exc_info=True)
-
-
 # --- the servicer ---------------------------------------------------------------------------------
 
 
@@ -252,7 +230,7 @@ class PlannerServicer(planner_pb2_grpc.PlannerServicer):
         self._dynamics: RemoteDynamics | None = None
         self._plan_lane = Lane("plan", self.service.max_queue)
         self._episode_lane = Lane("episode", 0)
-        self.publisher = ZenohPublisher(EPISODE_KEY)
+        self.publisher = Publisher(EPISODE_KEY)
 
     @property
     def reachability(self):

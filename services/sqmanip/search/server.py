@@ -42,7 +42,6 @@ from sqmanip.errors import (
 )
 from sqmanip.planning.server import (
     Lane,
-    ZenohPublisher,
     deadline_of,
     stream_generator,
 )
@@ -50,6 +49,7 @@ from sqmanip.rpc import convert
 from sqmanip.rpc.client import RemoteDynamics, RemoteRecognizer, RemoteSimulator
 from sqmanip.rpc.server import configure_logging, run_service, service_parser
 from sqmanip.settings import StackSettings, get_settings
+from sqmanip.streams import Publisher
 from sqmanip.v1 import search_pb2, search_pb2_grpc
 
 log = logging.getLogger("sqmanip.search.server")
@@ -191,7 +191,7 @@ class SearchServicer(search_pb2_grpc.SearchServicer):
         self._planners: dict[tuple, Any] = {}
         self._eval_lane = Lane("evaluate", self.service.max_queue)
         self._episode_lane = Lane("episode", 0)
-        self.publisher = ZenohPublisher(EPISODE_KEY)
+        self.publisher = Publisher(EPISODE_KEY)
 
     # -- Evaluate ----------------------------------------------------------------------------------
 

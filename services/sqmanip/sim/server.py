@@ -173,16 +173,13 @@ def main(argv: list[str] | None = None) -> int:
     servicer = SimulatorServicer(
         max_queue=args.max_queue, max_message_bytes=settings.grpc_max_message_bytes
     )
-    session = None
+    from sqmanip import streams
+
+    publisher = streams.Publisher(OBSERVATION_KEY)
+    servicer.publisher = publisher  # drops messages until the router answers
 
     def on_started(_running) -> None:
-        nonlocal session
-        from sqmanip import streams
-
-        session = streams.open_session(settings)  # after start-up: no fork follows
-        if session is not None:
-            servicer.publisher = streams.Publisher(session, OBSERVATION_KEY)
-            log.info("publishing observations on zenoh key %s", OBSERVATION_KEY)
+        publisher.open(settings)  # after start-up: no fork follows
 
     try:
         return run_service(
@@ -195,8 +192,7 @@ def main(argv: list[str] | None = None) -> int:
             on_started=on_started,
         )
     finally:
-        if session is not None:
-            session.close()
+        publisher.close()
 
 
 if __name__ == "__main__":
