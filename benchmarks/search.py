@@ -8,7 +8,9 @@ Scenarios (:mod:`sqmanip.search.scenarios`) are generated once per object count 
 ``--workers`` processes (one simulator and planner per process, 1 torch thread each) or, with
 ``--ray-address``, as Ray tasks on a cluster (``pip install ray``; the full 180 episodes per cell
 of the thesis). Pushes are predicted with the kinematic push model (no trained SQPD-Net weights
-ship with the repository). One PNG per shown episode (the first of each cell): camera image,
+ship with the repository). Once the target is visible, ``g(x*)`` counts only the grasps the
+simulator's own IK and collision checks accept (:class:`sqmanip.search.execution.SimGraspCheck`),
+and scenarios whose target no such grasp reaches with the shelf alone are discarded (5.5.1). One PNG per shown episode (the first of each cell): camera image,
 f and f*g maps and the chosen action per step, written without a plotting library.
 
     python -m benchmarks.search [--episodes N] [--objects 2 4 6 8] [--workers W] [--quick]
@@ -200,6 +202,17 @@ def run_episode(task: dict) -> dict:
         "wall_s": wall,
         "plan_ms_mean": float(np.mean(plan)) if plan else 0.0,
         "plan_ms_max": float(np.max(plan)) if plan else 0.0,
+        "refused": sum(e.message.startswith("refused") for e in res.events),
+        "grasp_check_ms": float(
+            np.mean(
+                [
+                    e.timings_ms["plan_grasp_check"]
+                    for e in res.events
+                    if "plan_grasp_check" in e.timings_ms
+                ]
+                or [0.0]
+            )
+        ),  # fmt: skip
     }
 
 
@@ -345,6 +358,12 @@ def main(argv=None) -> int:
         key = r["reason"].split(":")[0]
         reasons[key] = reasons.get(key, 0) + 1
     print(f"episode endings: {reasons}")
+    print(
+        f"actions the simulator refused: {sum(r['refused'] for r in results)} in "
+        f"{len(results)} episodes; grasp executability check (SimGraspCheck) "
+        f"{np.mean([r['grasp_check_ms'] for r in results if r['grasp_check_ms'] > 0] or [0]):.0f}"
+        " ms per visible step"
+    )
     print(f"episodes: {len(results)} in {wall:.0f} s ({args.workers} workers)")
     os.makedirs(os.path.dirname(OUT), exist_ok=True)
     with open(OUT, "w") as fh:

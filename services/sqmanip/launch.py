@@ -50,6 +50,8 @@ SERVICE_MODULES: dict[str, str] = {
 
 GATEWAY_MODULE = "sqmanip.gateway"
 ZENOH_MODULE = "sqmanip.streams"
+VIEWER_MODULE = "sqmanip.viewer"
+"""The viewer (``services=(..., "viewer")``): an HTTP service, ready when ``GET /`` answers."""
 
 _PORT_FIELDS = ("gateway_port", "viewer_port", *(f"{s}_port" for s in SERVICES))
 
@@ -175,7 +177,7 @@ class Stack:
         log_dir: str | Path | None = None,
         python: str = sys.executable,
     ) -> None:
-        unknown = [s for s in services if s not in SERVICE_MODULES]
+        unknown = [s for s in services if s not in SERVICE_MODULES and s != "viewer"]
         if unknown:
             raise ValueError(f"services: unknown {unknown}; available: {sorted(SERVICE_MODULES)}")
         self.settings = settings.model_copy(
@@ -185,8 +187,12 @@ class Stack:
         self.restart = restart
         self.log_dir = Path(log_dir) if log_dir is not None else None
         self._stopping = threading.Event()
+        self._spawn_lock = threading.Lock()
+        """Held while the supervisor restarts a process and while :meth:`stop` sets
+        ``_stopping``: a restart never starts a process after ``stop`` has signalled the rest."""
         s = self.settings
-        env_extra = {"SQMANIP_GATEWAY_SERVICES": "[" + ",".join(f'"{n}"' for n in services) + "]"}
+        backends = [n for n in services if n != "viewer"]
+        env_extra = {"SQMANIP_GATEWAY_SERVICES": "[" + ",".join(f'"{n}"' for n in backends) + "]"}
         self._env = {**os.environ, **settings_env(s), **env_extra, "PYTHONUNBUFFERED": "1"}
         self.procs: list[Proc] = []
         if s.zenoh_enabled:
@@ -195,7 +201,7 @@ class Stack:
             self.procs.append(
                 Proc("zenoh", [python, "-m", ZENOH_MODULE, "--listen", endpoint], f"tcp:{hostport}")
             )
-        for name in self.services:
+        for name in backends:
             port = s.port(name)
             argv = [python, "-m", SERVICE_MODULES[name], "--host", s.host, "--port", str(port)]
             self.procs.append(Proc(name, argv, f"grpc:{s.host}:{port}"))
@@ -203,11 +209,19 @@ class Stack:
             argv = [python, "-m", GATEWAY_MODULE, "--host", s.gateway_host]
             argv += ["--port", str(s.gateway_port), "--log-level", "warning"]
             self.procs.append(Proc("gateway", argv, f"http:{self.gateway_url}/healthz"))
+        if "viewer" in self.services:
+            argv = [python, "-m", VIEWER_MODULE, "--host", s.gateway_host]
+            argv += ["--port", str(s.viewer_port), "--log-level", "warning"]
+            self.procs.append(Proc("viewer", argv, f"http:{self.viewer_url}/"))
 
     # -- addresses
     @property
     def gateway_url(self) -> str:
         return f"http://{self.settings.gateway_host}:{self.settings.gateway_port}"
+
+    @property
+    def viewer_url(self) -> str:
+        return f"http://{self.settings.gateway_host}:{self.settings.viewer_port}"
 
     def address(self, name: str) -> str:
         """``host:port`` of a gRPC service."""
@@ -215,7 +229,9 @@ class Stack:
 
     def urls(self) -> dict[str, str]:
         out = {"gateway": self.gateway_url, "docs": f"{self.gateway_url}/docs"}
-        out.update({n: f"grpc://{self.address(n)}" for n in self.services})
+        if "viewer" in self.services:
+            out["viewer"] = self.viewer_url
+        out.update({n: f"grpc://{self.address(n)}" for n in self.services if n != "viewer"})
         if self.settings.zenoh_enabled:
             out["zenoh"] = self.settings.zenoh_endpoint
         return out
@@ -243,6 +259,8 @@ class Stack:
 
     def _wait_ready(self, proc: Proc, deadline: float) -> None:
         while time.monotonic() < deadline:
+            if self._stopping.is_set():
+                raise RuntimeError(f"{proc.name}: the stack is stopping")
             if not proc.alive():
                 code = proc.popen.returncode if proc.popen else None
                 raise RuntimeError(
@@ -280,7 +298,8 @@ class Stack:
 
     def stop(self, grace: float = 5.0) -> None:
         """SIGTERM every process (gateway first), SIGKILL whatever is left after ``grace``."""
-        self._stopping.set()
+        with self._spawn_lock:
+            self._stopping.set()
         for proc in reversed(self.procs):
             if proc.alive():
                 with contextlib.suppress(ProcessLookupError):
@@ -339,13 +358,21 @@ class Stack:
                     )  # fmt: skip
                 elif now >= next_try[proc.name]:
                     del next_try[proc.name]
-                    proc.restarts += 1
-                    self._spawn(proc)
+                    with self._spawn_lock:
+                        if self._stopping.is_set():
+                            break
+                        proc.restarts += 1
+                        self._spawn(proc)
                     started_at[proc.name] = time.monotonic()
                     try:
                         self._wait_ready(proc, time.monotonic() + ready_timeout)
-                        log.warning("%s restarted and ready", proc.name)
+                        log.warning(
+                            "%s restarted (pid %d) and ready %.1f s after the restart",
+                            proc.name, proc.popen.pid, time.monotonic() - started_at[proc.name],
+                        )  # fmt: skip
                     except (RuntimeError, TimeoutError) as exc:
+                        if self._stopping.is_set():
+                            break
                         log.error("%s restart failed: %s", proc.name, exc)
         return 0
 
@@ -383,6 +410,9 @@ def running_stack(
             thread = threading.Thread(target=stack.supervise, name="supervisor", daemon=True)
             thread.start()
             cleanup.callback(thread.join, 10)
+            # Runs first (LIFO): without it the join above waits its full 10 s, because the
+            # supervisor only returns once ``_stopping`` is set.
+            cleanup.callback(stack._stopping.set)
         yield stack
 
 
@@ -399,8 +429,9 @@ def add_parser(subparsers) -> None:
     )
     p.add_argument(
         "--services",
-        default=",".join(SERVICE_MODULES),
-        help=f"comma-separated services to start (default: all available: {','.join(SERVICE_MODULES)})",
+        default=",".join([*SERVICE_MODULES, "viewer"]),
+        help="comma-separated services to start (default: all available: "
+        f"{','.join([*SERVICE_MODULES, 'viewer'])})",
     )
     p.add_argument("--port-offset", type=int, default=0, help="add to every configured port")
     p.add_argument("--no-zenoh", action="store_true", help="do not start the Zenoh router")

@@ -6,6 +6,7 @@
 
 from .client import AsyncClient, Client
 from .errors import (
+    AuthenticationError,
     BadRequestError,
     ConnectionError,
     GatewayTimeoutError,
@@ -37,6 +38,7 @@ from .types import (
 )
 
 __all__ = [
+    "AuthenticationError",
     "AsyncClient",
     "BadRequestError",
     "CameraIntrinsics",

@@ -13,6 +13,7 @@ search's f and g maps (``/search/evaluate``). Errors become
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Mapping
 from typing import Any
 
@@ -124,10 +125,23 @@ def _transport_error(exc: httpx.HTTPError, url: str) -> errors.SQManipError:
     return errors.ConnectionError(f"cannot reach {url}: {exc}")
 
 
+TOKEN_ENV = "SQMANIP_API_TOKEN"
+
+
+def auth_headers(token: str | None = None) -> dict[str, str]:
+    """``{"authorization": "Bearer <token>"}`` for ``token``, else ``$SQMANIP_API_TOKEN``, else
+    ``{}`` (a gateway on loopback without a token needs none)."""
+    token = (token if token is not None else os.environ.get(TOKEN_ENV, "")).strip()
+    return {"authorization": f"Bearer {token}"} if token else {}
+
+
 class Client:
     """Blocking client: ``Client("http://127.0.0.1:8080").recognize(points)``.
 
-    ``http_client`` replaces the internal ``httpx.Client`` (e.g. a test client).
+    ``http_client`` replaces the internal ``httpx.Client`` (e.g. a test client). ``token`` (else
+    ``$SQMANIP_API_TOKEN``) is sent as ``Authorization: Bearer <token>`` on every request (set
+    on ``http_client``'s default headers when one is given); a gateway that requires a token
+    answers 401 without it (:class:`sqmanip_client.errors.AuthenticationError`).
     """
 
     def __init__(
@@ -136,10 +150,12 @@ class Client:
         *,
         timeout: float = DEFAULT_TIMEOUT,
         http_client: httpx.Client | None = None,
+        token: str | None = None,
     ) -> None:
         self.base_url = base_url.rstrip("/")
         self._own = http_client is None
         self._http = http_client or httpx.Client(base_url=self.base_url, timeout=timeout)
+        self._http.headers.update(auth_headers(token))
         self.timeout = timeout
 
     def recognize(
@@ -355,10 +371,12 @@ class AsyncClient:
         *,
         timeout: float = DEFAULT_TIMEOUT,
         http_client: httpx.AsyncClient | None = None,
+        token: str | None = None,
     ) -> None:
         self.base_url = base_url.rstrip("/")
         self._own = http_client is None
         self._http = http_client or httpx.AsyncClient(base_url=self.base_url, timeout=timeout)
+        self._http.headers.update(auth_headers(token))
         self.timeout = timeout
 
     async def recognize(

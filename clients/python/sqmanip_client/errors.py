@@ -27,6 +27,11 @@ class NotFoundError(BadRequestError):
     """404: unknown id."""
 
 
+class AuthenticationError(BadRequestError):
+    """401: the gateway requires a bearer token (``Client(url, token=...)`` or
+    ``$SQMANIP_API_TOKEN``) and none or a wrong one was sent."""
+
+
 class TooManyRequestsError(BadRequestError):
     """429: the service is busy; retry later."""
 
@@ -58,7 +63,9 @@ def from_response(status: int, payload: object, text: str) -> SQManipError:
         detail = str(payload.get("detail", text))
         field = payload.get("field") if isinstance(payload.get("field"), str) else None
     cls: type[SQManipError]
-    if status == 404:
+    if status == 401:
+        cls = AuthenticationError
+    elif status == 404:
         cls = NotFoundError
     elif status == 429:
         cls = TooManyRequestsError

@@ -94,6 +94,10 @@ def planar_motion(dxy: torch.Tensor, cs: torch.Tensor, eps: float = 1e-12) -> to
     return torch.stack(rows, -2)
 
 
+ALIGNMENT_TIE_TOL = 1e-4
+"""Relative tolerance under which the two candidate x axes of the shape alignment tie."""
+
+
 def _alignment_axes(
     poses: torch.Tensor, params: torch.Tensor, kinds: torch.Tensor, e_tol: float
 ) -> tuple[torch.Tensor, ...]:
@@ -119,7 +123,10 @@ def _alignment_choice(
     vxy = torch.cat([v[..., :2], torch.zeros_like(v[..., :1])], -1).unsqueeze(-2)  # (..., 1, 3)
     d = (R * vxy.unsqueeze(-1)).sum(-2)  # (..., M, 3): push direction . axis
     d1, d2 = d.gather(-1, i1.unsqueeze(-1)).squeeze(-1), d.gather(-1, i2.unsqueeze(-1)).squeeze(-1)
-    use1 = d1.abs() >= d2.abs()
+    # Ties (|d1| = |d2|: the 4.5 sampler pushes along the object diagonals) go to i1 up to a
+    # tolerance, so rounding of a transformed input cannot flip the variant (equivariance).
+    tol = ALIGNMENT_TIE_TOL * torch.linalg.vector_norm(vxy, dim=-1)  # (..., 1)
+    use1 = d1.abs() >= d2.abs() - tol
     x_val = torch.where(use1, d1, d2)
     return use1, torch.where(x_val < 0, -1.0, 1.0).to(R.dtype)
 

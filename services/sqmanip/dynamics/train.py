@@ -130,8 +130,16 @@ def train(
     *,
     resume: bool = True,
     progress: bool = True,
+    init_from: str | Path | None = None,
+    time_limit_s: float | None = None,
 ) -> dict[str, Any]:
-    """Train and checkpoint into ``out_dir``; returns ``{"history": [...], "model": model}``."""
+    """Train and checkpoint into ``out_dir``; returns ``{"history": [...], "model": model}``.
+
+    ``init_from``: a weights file (``model.pt`` state dict) or a directory holding one, loaded
+    before the first epoch of a fresh run (fine-tuning a shipped checkpoint on more data; a
+    resumed run ignores it). ``time_limit_s``: stop after the first epoch that ends past this
+    many seconds of wall time, writing the checkpoint so the same command resumes.
+    """
     if len(train_data) == 0:
         raise ValueError("train_data is empty")
     out = Path(out_dir)
@@ -157,8 +165,14 @@ def train(
         start_epoch, best = ckpt["epoch"] + 1, ckpt["best_val"]
         log.info("resuming from epoch %d", ckpt["epoch"])
     else:
+        if init_from is not None:
+            src = Path(init_from)
+            src = src / "model.pt" if src.is_dir() else src
+            model.load_state_dict(torch.load(src, map_location=device, weights_only=True))
+            log.info("initialised from %s", src)
         with open(out / "log.csv", "w", newline="") as f:
             csv.writer(f).writerow(LOG_FIELDS)
+    started = time.perf_counter()
     config.save(out / "config.json")
     history: list[dict[str, float]] = []
     epochs = range(start_epoch, config.epochs + 1)
@@ -194,7 +208,8 @@ def train(
         if score < best:
             best = score
             _save(out / "model_best.pt", model.state_dict())
-        if epoch % config.checkpoint_every == 0 or epoch == config.epochs:
+        out_of_time = time_limit_s is not None and time.perf_counter() - started > time_limit_s
+        if epoch % config.checkpoint_every == 0 or epoch == config.epochs or out_of_time:
             _save(out / "model.pt", model.state_dict())
             _save(
                 ckpt_path,
@@ -211,6 +226,9 @@ def train(
         bar.set_postfix(
             loss=f"{row['train_loss']:.3g}", val=f"{row.get('val_loss', float('nan')):.3g}"
         )
+        if out_of_time:
+            log.info("time limit reached after epoch %d; re-run the command to resume", epoch)
+            break
     return {"history": history, "model": model}
 
 
@@ -252,6 +270,8 @@ def _run(args: argparse.Namespace) -> int:
         overrides["device"] = args.device
     if args.no_alignment:
         overrides["shape_alignment"] = False
+    if args.lr is not None:
+        overrides["lr"] = args.lr
     config = (
         baseline_config(args.config, **overrides)
         if args.baseline
@@ -260,7 +280,11 @@ def _run(args: argparse.Namespace) -> int:
     if args.data is None and not args.synthetic:
         raise SystemExit("give --data DIR (with train/ [val/]) or --synthetic N")
     train_data, val_data = _load_data(args, config.max_objects)
-    result = train(config, train_data, val_data, args.out, resume=not args.no_resume)
+    result = train(
+        config, train_data, val_data, args.out, resume=not args.no_resume,
+        init_from=args.init_from,
+        time_limit_s=None if args.time_limit is None else 60.0 * args.time_limit,
+    )  # fmt: skip
     last = result["history"][-1] if result["history"] else {}
     print({k: round(v, 5) if isinstance(v, float) else v for k, v in last.items()})
     return 0
@@ -287,6 +311,15 @@ def add_cli(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--device", choices=["cpu", "cuda", "auto"])
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--no-resume", action="store_true", help="ignore an existing checkpoint")
+    p.add_argument("--lr", type=float, help="Adam learning rate (default: the preset's)")
+    p.add_argument(
+        "--init-from",
+        metavar="PATH",
+        help="fresh run: start from these weights (model.pt or its directory)",
+    )
+    p.add_argument("--time-limit", type=float, metavar="MIN",
+                   help="stop (with a checkpoint, resumable) after the first epoch past MIN "
+                        "minutes of wall time")  # fmt: skip
     p.set_defaults(func=_run)
     return p
 

@@ -21,6 +21,7 @@ from . import errors
 from .config import GatewaySettings
 from .limits import BodySizeLimit, ConcurrencyLimit, RequestLog
 from .routes import api_router
+from .security import BearerAuth
 
 log = logging.getLogger("sqmanip.gateway")
 
@@ -58,9 +59,15 @@ def create_app(settings: GatewaySettings | None = None) -> FastAPI:
     errors.install(app)
     app.include_router(api_router)
 
-    # Outermost first: the size and concurrency guards run before anything reads the body.
-    app.add_middleware(ConcurrencyLimit, max_concurrent=settings.gateway_max_concurrent_requests)
+    # Outermost first: request log, bearer token (when configured: nothing unauthenticated
+    # reaches the limits or a route), body size, concurrency.
+    app.add_middleware(
+        ConcurrencyLimit,
+        max_concurrent=settings.gateway_max_concurrent_requests,
+        max_per_client=settings.gateway_max_concurrent_per_client,
+    )
     app.add_middleware(BodySizeLimit, max_bytes=settings.gateway_max_body_bytes)
+    app.add_middleware(BearerAuth, token=settings.token())
     app.add_middleware(RequestLog)
     return app
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from pydantic import Field, field_validator
+from pydantic import Field, SecretStr, field_validator
 
 from sqmanip.settings import SERVICES, StackSettings
 
@@ -15,9 +15,30 @@ class GatewaySettings(StackSettings):
     """Largest request body (bytes), checked before the body is read: 413 beyond it. 2 M points
     are 24 MB as binary and about 70 MB as JSON."""
     gateway_max_concurrent_requests: int = Field(64, ge=1)
-    """Requests handled at once; more are answered 429 at once instead of queueing."""
+    """Requests handled at once (all clients); more are answered 429 at once instead of
+    queueing."""
+    gateway_max_concurrent_per_client: int = Field(16, ge=1)
+    """Requests handled at once for one client address; more are answered 429."""
+    api_token: SecretStr | None = None
+    """Bearer token (env ``SQMANIP_API_TOKEN``): when set, every route except ``/healthz``
+    requires ``Authorization: Bearer <token>``; required to bind a non-loopback address."""
+    gateway_insecure: bool = False
+    """Serve on a non-loopback address without a token, on purpose (env
+    ``SQMANIP_GATEWAY_INSECURE=true`` or ``--insecure``): e.g. inside a container whose port
+    is published on the host's loopback only."""
     gateway_health_timeout_s: float = Field(1.0, gt=0)
     """Per-backend timeout of the gRPC health checks behind ``GET /healthz``."""
+
+    @field_validator("api_token")
+    @classmethod
+    def _long_enough(cls, value: SecretStr | None) -> SecretStr | None:
+        if value is not None and len(value.get_secret_value().strip()) < 16:
+            raise ValueError("api_token (SQMANIP_API_TOKEN): expected at least 16 characters")
+        return value
+
+    def token(self) -> str | None:
+        """The bearer token, or None when unset."""
+        return None if self.api_token is None else self.api_token.get_secret_value().strip()
 
     @field_validator("gateway_services")
     @classmethod

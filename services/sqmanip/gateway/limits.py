@@ -2,8 +2,9 @@
 
 ``BodySizeLimit`` answers 413 from the ``Content-Length`` header alone when it is over the
 limit, and stops a chunked/undeclared body as soon as the bytes received pass the limit (the
-rest is never read). ``ConcurrencyLimit`` answers 429 at once when ``max_concurrent`` requests
-are already in progress (``/healthz`` and the docs are exempt).
+rest is never read). ``ConcurrencyLimit`` answers 429 at once when a client already has
+``max_per_client`` requests in progress, or all clients together ``max_concurrent``
+(``/healthz`` and the docs are exempt).
 """
 
 from __future__ import annotations
@@ -20,7 +21,13 @@ log = logging.getLogger("sqmanip.gateway")
 EXEMPT_PATHS = ("/healthz", "/docs", "/openapi.json", "/redoc", "/")
 
 
-async def _send_json(send: Send, status: int, detail: str, field: str | None = None) -> None:
+async def _send_json(
+    send: Send,
+    status: int,
+    detail: str,
+    field: str | None = None,
+    headers: list[tuple[bytes, bytes]] | None = None,
+) -> None:
     body = json.dumps({"detail": detail, "field": field}).encode()
     await send(
         {
@@ -30,6 +37,7 @@ async def _send_json(send: Send, status: int, detail: str, field: str | None = N
                 (b"content-type", b"application/json"),
                 (b"content-length", str(len(body)).encode()),
                 (b"connection", b"close"),
+                *(headers or ()),
             ],
         }
     )
@@ -131,21 +139,53 @@ class RequestLog:
 
 
 class ConcurrencyLimit:
-    def __init__(self, app: ASGIApp, max_concurrent: int) -> None:
+    """At most ``max_per_client`` requests in progress per client address and
+    ``max_concurrent`` in all; beyond either, 429 at once (with ``retry-after: 1``) instead of
+    queueing, so one busy client cannot take every slot from the others.
+
+    The client is the TCP peer address (``scope["client"]``); ``X-Forwarded-For`` is not trusted
+    (anyone can send it). Behind a reverse proxy every request has the proxy's address, and the
+    per-client limit acts as a second global one."""
+
+    def __init__(
+        self, app: ASGIApp, max_concurrent: int, max_per_client: int | None = None
+    ) -> None:
         self.app, self.max_concurrent = app, max_concurrent
+        self.max_per_client = max_per_client or max_concurrent
         self.in_flight = 0
+        self.per_client: dict[str, int] = {}
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http" or scope.get("path") in EXEMPT_PATHS:
             await self.app(scope, receive, send)
             return
+        client = (scope.get("client") or ("unknown", 0))[0]
+        busy = self.per_client.get(client, 0)
+        if busy >= self.max_per_client:
+            await _send_json(
+                send,
+                429,
+                f"too many concurrent requests from {client} (limit {self.max_per_client} per "
+                f"client); retry",
+                headers=[(b"retry-after", b"1")],
+            )
+            return
         if self.in_flight >= self.max_concurrent:
             await _send_json(
-                send, 429, f"too many concurrent requests (limit {self.max_concurrent}); retry"
+                send,
+                429,
+                f"too many concurrent requests (limit {self.max_concurrent}); retry",
+                headers=[(b"retry-after", b"1")],
             )
             return
         self.in_flight += 1
+        self.per_client[client] = busy + 1
         try:
             await self.app(scope, receive, send)
         finally:
             self.in_flight -= 1
+            left = self.per_client[client] - 1
+            if left:
+                self.per_client[client] = left
+            else:
+                del self.per_client[client]

@@ -7,7 +7,7 @@ object to world, colors are floats in [0, 1]. Request and response models are se
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
@@ -18,6 +18,12 @@ from sqmanip.perception.types import RecognizedObject, RecognizeOptions, Scene
 from sqmanip.sim.actions import ActionResult, ObjectState, Observation, SimState
 
 Vec3 = tuple[float, float, float]
+
+# Integers bounded by their protobuf wire types: a larger value would make the gateway's proto
+# assignment raise (a 500) instead of a 422 naming the field (found by tests/integration/test_fuzz).
+Int64 = Annotated[int, Field(ge=-(2**63), le=2**63 - 1)]
+Int32 = Annotated[int, Field(ge=-(2**31), le=2**31 - 1)]
+UInt32 = Annotated[int, Field(ge=0, le=2**32 - 1)]
 
 
 class WorkspaceIn(BaseModel):
@@ -34,11 +40,13 @@ class RecognizeOptionsIn(BaseModel):
     segmentation: Literal["clustering", "labels", "network"] | None = Field(
         None, description="Default: 'labels' when labels are sent, else 'clustering'."
     )
-    points_per_segment: int = Field(300, ge=1, description="Resampled points per segment (3.5.3).")
+    points_per_segment: UInt32 = Field(
+        300, ge=1, description="Resampled points per segment (3.5.3)."
+    )
     remove_support: bool = True
     amodal: bool = True
     deformable: bool = True
-    seed: int = 0
+    seed: Int64 = 0
 
     def to_domain(self, *, has_labels: bool) -> RecognizeOptions:
         seg = self.segmentation or ("labels" if has_labels else "clustering")
@@ -199,7 +207,7 @@ class SimResetBody(BaseModel):
         "position, orientation (xyzw), size | radius, height | params, sq_kind | path, scale, "
         "mass, friction, color, upright, name}]}",
     )
-    seed: int | None = Field(None, description="Seed of a random scene (instead of scene).")
+    seed: Int64 | None = Field(None, description="Seed of a random scene (instead of scene).")
     n_objects: int | None = Field(None, ge=0, le=20, description="Random scene: objects (4).")
     kind: Literal["tabletop", "shelf"] = "tabletop"
     object_kinds: list[Literal["box", "cylinder", "superquadric"]] | None = Field(
@@ -506,8 +514,8 @@ class RuleOptionsIn(BaseModel):
     model_config = ConfigDict(extra="forbid")
     top_down: bool | None = None
     side: bool | None = None
-    per_direction: int | None = None
-    max_candidates: int | None = None
+    per_direction: UInt32 | None = None
+    max_candidates: UInt32 | None = None
     max_width: float | None = None
     spread: float | None = None
     grasp_depth: float | None = None
@@ -522,15 +530,15 @@ class GraspOptionsIn(BaseModel):
     """Plan options (``sqmanip.grasping.PlanOptions``); omitted ones take the defaults."""
 
     model_config = ConfigDict(extra="forbid")
-    n_samples: int | None = Field(None, description="Surface samples x1 (Algorithm 1); 256.")
-    n_approach: int | None = Field(None, description="Approach directions per pair; 12.")
+    n_samples: UInt32 | None = Field(None, description="Surface samples x1 (Algorithm 1); 256.")
+    n_approach: UInt32 | None = Field(None, description="Approach directions per pair; 12.")
     antipodal_threshold: float | None = None
     beta: float | None = Field(None, description="Uncertainty weight of 3.6.3; 5.")
-    max_results: int | None = Field(None, ge=0, description="Grasps per target (20; 0 = all).")
-    seed: int | None = None
+    max_results: UInt32 | None = Field(None, description="Grasps per target (20; 0 = all).")
+    seed: Int64 | None = None
     score: Literal["top_down", "uncertainty"] | None = None
     method: Literal["antipodal", "rule_based"] | None = None
-    gripper_points: int | None = None
+    gripper_points: UInt32 | None = None
     include_wrist: bool | None = None
     approach_distance: float | None = None
     support_clearance: float | None = None
@@ -575,7 +583,7 @@ class GraspsBody(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     objects: list[ObjectIn] | None = Field(None, description="Recognized objects (/recognize).")
-    target_id: int | None = Field(None, description="Object id to grasp; omitted = every object.")
+    target_id: Int32 | None = Field(None, description="Object id to grasp; omitted = every object.")
     points: list[list[float]] | None = Field(None, description="N x 3 world points (m).")
     colors: list[list[float]] | None = None
     labels: list[int] | None = None
@@ -722,7 +730,7 @@ class TaskIn(BaseModel):
     goals: list[GoalIn] | None = Field(None, description="moving: goals of some objects.")
     beta: float = Field(0.0, description="moving: weight of the orientation error (4.4.6).")
     tau: float | None = Field(None, description="singulation: pairwise distance (m), 0.20.")
-    target_id: int | None = Field(None, description="grasping, interactive_moving: the target.")
+    target_id: Int32 | None = Field(None, description="grasping, interactive_moving: the target.")
     goal: Vec3 | None = Field(None, description="interactive_moving: the target's goal (m).")
 
     def to_domain(self) -> Any:
@@ -751,11 +759,11 @@ class TaskIn(BaseModel):
 
 class MPCOptionsIn(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    num_sequences: int | None = Field(
-        None, ge=0, description="K sampled sequences (default 100; at most 16 with 'physics')."
+    num_sequences: UInt32 | None = Field(
+        None, description="K sampled sequences (default 100; at most 16 with 'physics')."
     )
-    horizon: int | None = Field(None, ge=0, description="Default: 1, or 3 for grasping.")
-    seed: int | None = None
+    horizon: UInt32 | None = Field(None, description="Default: 1, or 3 for grasping.")
+    seed: Int64 | None = None
     dynamics_model: str = Field(
         "sqpdnet", description="'sqpdnet', 'physics' (PyBullet, ~1 s per push) or a checkpoint."
     )
@@ -802,8 +810,8 @@ class MPCEpisodeBody(BaseModel):
     kind: Literal[
         "moving", "singulation", "grasping_clutter", "grasping_large", "interactive_moving"
     ]
-    index: int = Field(0, ge=0)
-    seed: int = 0
+    index: UInt32 = 0
+    seed: Int64 = 0
     objects: Literal["recognition", "ground_truth"] = "recognition"
     options: MPCOptionsIn = Field(default_factory=MPCOptionsIn)
     max_steps: int | None = Field(None, ge=0, le=100)
@@ -817,14 +825,14 @@ class SearchEpisodeBody(BaseModel):
         None, description="A ShelfScenario dict (as a result's 'scenario'); default: generate."
     )
     n_objects: int = Field(2, ge=0, le=12)
-    seed: int = 0
+    seed: Int64 = 0
     method: Literal["search_for_grasp", "search_and_grasp"] = "search_for_grasp"
     shapes: Literal["oracle", "recognized"] = "oracle"
     actions: Literal["both", "push", "pick_and_place"] = "both"
     dynamics_model: str = Field("kinematic", description="'kinematic' or a dynamics model name.")
     max_steps: int | None = Field(None, ge=0, le=50)
     num_sequences: int | None = Field(None, ge=1, le=1000)
-    plan_seed: int = 0
+    plan_seed: Int64 = 0
 
 
 class EpisodeStartedOut(BaseModel):

@@ -12,6 +12,7 @@ from .antipodal import AntipodalPairs, poses_about_axis, sample_antipodal_pairs
 from .collision import CollisionResult, CollisionScene, build_scene, check_collisions
 from .config import (
     PANDA_HAND,
+    PANDA_HAND_URDF,
     GraspConfig,
     Reachability,
     WorkspaceReachability,
@@ -32,6 +33,7 @@ from .types import Candidates, Environment, Grasp, GripperSpec, PlanOptions, Rul
 
 __all__ = [
     "PANDA_HAND",
+    "PANDA_HAND_URDF",
     "AntipodalPairs",
     "Candidates",
     "CollisionResult",

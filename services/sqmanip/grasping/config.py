@@ -22,6 +22,28 @@ from .types import GripperSpec, PlanOptions
 PANDA_HAND = GripperSpec()
 """The Franka Emika hand (8 cm stroke), the gripper of every experiment in the thesis."""
 
+PANDA_HAND_URDF = GripperSpec(
+    finger_length=0.0462,
+    finger_width=0.021,
+    finger_thickness=0.0264,
+    tip_offset=0.0072,
+    palm_size=(0.0632, 0.2044, 0.066),
+)
+"""The same hand measured on the collision meshes the simulator uses (``franka_panda/panda.urdf``
+of ``pybullet_data``: ``finger.obj`` 2.1 x 2.64 x 5.38 cm from the finger joint 5.84 cm below the
+flange, ``hand.obj`` 6.32 x 20.44 cm reaching 6.6 cm below the flange), in the frame of the
+simulator's ``panda_grasptarget`` (10.5 cm below the flange):
+
+- fingertips 7.2 mm past the TCP (not 9.4); the hand body starts 3.9 cm behind the TCP (not
+  4.46: the visible finger length is 4.62 cm), so ``flange_offset`` is exactly 0.105 and
+  :func:`~sqmanip.grasping.reachability.sim_tool_pose` is the identity;
+- each finger is 2.64 cm thick behind its pad at its root (1.4 cm near the tip; one box holds
+  the thicker root, conservatively), 2.1 cm wide.
+
+Grasps planned with :data:`PANDA_HAND` (1.2 cm thin fingers, 5 mm shallower hand) pass the
+planner's check and are then refused by the simulator where a neighbouring part is that close.
+"""
+
 
 class Reachability(Protocol):
     """Kinematic feasibility of gripper poses: ``(K, 4, 4) -> bool (K,)``."""

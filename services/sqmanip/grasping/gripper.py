@@ -28,15 +28,22 @@ Box = tuple[np.ndarray, np.ndarray]
 
 
 def gripper_boxes(
-    spec: GripperSpec, opening: float | None = None, approach_distance: float = 0.0
+    spec: GripperSpec,
+    opening: float | None = None,
+    approach_distance: float = 0.0,
+    margin: float = 0.0,
 ) -> list[Box]:
     """Axis-aligned boxes of the open gripper in its own frame: left finger, right finger, palm.
 
-    ``opening`` is the distance between the finger pads (default ``spec.max_opening``).
+    ``opening`` is the distance between the finger pads (default ``spec.max_opening``);
+    ``margin`` inflates every box by that much on every side but the finger pads (a safety
+    margin for shape error: the finger backs, sides and tips and the hand grow by ``margin``).
     """
     w = spec.max_opening if opening is None else float(opening)
     if not (0.0 <= w <= spec.max_opening):
         raise ValidationError(f"opening must be in [0, {spec.max_opening}], got {opening!r}")
+    if not (math.isfinite(margin) and margin >= 0):
+        raise ValidationError(f"margin must be finite and >= 0, got {margin!r}")
     fx, ft = spec.finger_width / 2, spec.finger_thickness
     z0, z1 = spec.palm_bottom, spec.tip_offset
     left = (np.array([-fx, w / 2, z0]), np.array([fx, w / 2 + ft, z1]))
@@ -46,7 +53,12 @@ def gripper_boxes(
         np.array([-px / 2, -py / 2, z0 - pz - approach_distance]),
         np.array([px / 2, py / 2, z0]),
     )
-    return [left, right, palm]
+    out = [(lo - margin, hi + margin) for lo, hi in (left, right, palm)]
+    # the pads keep their place: inflating them inwards would reject every grasp within
+    # ``2 margin`` of the stroke, while recognition tends to *over*-estimate widths (amodal
+    # completion of the hidden side), and the pads only ever meet the target at the contacts
+    out[0][0][1], out[1][1][1] = w / 2, -w / 2
+    return out
 
 
 def _box_area(lo: np.ndarray, hi: np.ndarray) -> float:
@@ -113,8 +125,9 @@ def _gripper_points_cached(
     include_wrist: bool,
     approach_distance: float,
     opening: float | None,
-) -> np.ndarray:
-    boxes = gripper_boxes(spec, opening, approach_distance)
+    margin: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    boxes = gripper_boxes(spec, opening, approach_distance, margin)
     area = sum(_box_area(lo, hi) for lo, hi in boxes)
     flange = -spec.flange_offset - approach_distance
     wrist = None
@@ -124,20 +137,25 @@ def _gripper_points_cached(
         wrist = (r, z0, flange)
         area += 2 * math.pi * r * (flange - z0) + 2 * math.pi * r * r
 
-    def build(spacing: float) -> np.ndarray:
+    def build(spacing: float) -> tuple[np.ndarray, np.ndarray]:
         parts = [box_surface_points(lo, hi, spacing) for lo, hi in boxes]
         if wrist is not None:
             parts.append(cylinder_surface_points(*wrist, spacing))
-        return np.concatenate(parts)
+        sides = [
+            np.full(len(q), s, dtype=np.int8)
+            for q, s in zip(parts, (1, -1, 0, 0)[: len(parts)], strict=True)
+        ]
+        return np.concatenate(parts), np.concatenate(sides)
 
     # faces + edges + caps make the count exceed area / h^2; a few secant steps fix the spacing
     spacing = math.sqrt(area / n_points)
-    pts = build(spacing)
+    pts, sides = build(spacing)
     for _ in range(4):
         spacing *= math.sqrt(len(pts) / n_points)
-        pts = build(spacing)
+        pts, sides = build(spacing)
     pts.setflags(write=False)
-    return pts
+    sides.setflags(write=False)
+    return pts, sides
 
 
 def gripper_points(
@@ -147,20 +165,63 @@ def gripper_points(
     include_wrist: bool = False,
     approach_distance: float = 0.0,
     opening: float | None = None,
+    margin: float = 0.0,
 ) -> np.ndarray:
     """Points on the open gripper's surfaces in the gripper frame, ``(P, 3)`` with ``P ~ n_points``.
 
     ``include_wrist`` adds the link 7/6 cylinder; ``approach_distance > 0`` returns the swept
-    afterimage of an approach along ``+z`` from ``approach_distance`` behind the pose (C.3).
-    Cached per arguments (the array is read-only).
+    afterimage of an approach along ``+z`` from ``approach_distance`` behind the pose (C.3);
+    ``margin`` inflates the boxes (:func:`gripper_boxes`). Cached per arguments (read-only).
     """
+    return gripper_points_and_sides(
+        spec,
+        n_points,
+        include_wrist=include_wrist,
+        approach_distance=approach_distance,
+        opening=opening,
+        margin=margin,
+    )[0]
+
+
+def gripper_points_and_sides(
+    spec: GripperSpec,
+    n_points: int = 512,
+    *,
+    include_wrist: bool = False,
+    approach_distance: float = 0.0,
+    opening: float | None = None,
+    margin: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`gripper_points` ``(P, 3)`` and the side of each point ``(P,)`` int8: ``+1`` left
+    finger (``+y``), ``-1`` right finger, ``0`` palm / wrist; moving the ``+-1`` points by
+    ``+-dy`` along ``y`` re-opens the hand (:func:`open_gripper_points`)."""
     if n_points < 16 or n_points > 100_000:
         raise ValidationError(f"n_points must be in [16, 100000], got {n_points}")
     if not (math.isfinite(approach_distance) and approach_distance >= 0):
         raise ValidationError(f"approach_distance must be >= 0, got {approach_distance!r}")
     return _gripper_points_cached(
-        spec, int(n_points), bool(include_wrist), float(approach_distance), opening
+        spec, int(n_points), bool(include_wrist), float(approach_distance), opening, float(margin)
     )
+
+
+def open_gripper_points(
+    poses: torch.Tensor,
+    points: np.ndarray,
+    sides: np.ndarray,
+    openings: torch.Tensor,
+    built_opening: float,
+) -> torch.Tensor:
+    """World points ``(K, P, 3)`` of the gripper at ``poses (K, 4, 4)`` opened to ``openings (K,)``.
+
+    ``points``/``sides`` come from :func:`gripper_points_and_sides` built at ``built_opening``;
+    each finger moves by ``(opening_k - built_opening) / 2`` along its side of the closing axis,
+    so the collision model holds the hand exactly as wide as it will be opened for execution.
+    """
+    world = transform_gripper_points(poses, points)
+    s = torch.as_tensor(np.asarray(sides, dtype=np.float64), dtype=world.dtype)
+    dy = 0.5 * (openings.to(world.dtype) - float(built_opening))  # (K,)
+    shift = dy.view(-1, 1, 1) * s.view(1, -1, 1) * poses[:, :3, 1].to(world.dtype).unsqueeze(1)
+    return world + shift
 
 
 def transform_gripper_points(

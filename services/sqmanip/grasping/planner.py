@@ -13,6 +13,9 @@ parts) and returns feasible grasps, best first:
    are found: collisions of the open gripper with the support plane, shelf boxes, the other
    objects and the target itself (3.7.15, B.5.12, :mod:`.collision`; one batched call), then
    kinematic feasibility (the constructor's ``reachability``, per pose) of the collision-free.
+   The gripper in that check is the hand as it will be executed: opened to
+   ``options.opening(width)`` (not to its full stroke), its boxes but the pads inflated by
+   ``options.collision_margin``, swept back ``options.approach_distance`` along the approach.
 
 Deterministic given ``options.seed``.
 """
@@ -33,7 +36,12 @@ from sqmanip.geometry import Superquadric, sample_parts
 from .antipodal import AntipodalPairs, poses_about_axis, sample_antipodal_pairs
 from .collision import CollisionResult, CollisionScene, build_scene, check_collisions
 from .config import PANDA_HAND, Reachability, WorkspaceReachability
-from .gripper import gripper_points, transform_gripper_points
+from .gripper import (
+    gripper_points,
+    gripper_points_and_sides,
+    open_gripper_points,
+    transform_gripper_points,
+)
 from .rule_based import rule_based_candidates
 from .types import Candidates, Environment, Grasp, GripperSpec, PlanOptions, parts_tuple
 
@@ -234,12 +242,14 @@ class GraspPlanner:
             clearance=opt.support_clearance,
             dtype=self.dtype,
         )
-        pts = gripper_points(
+        pts, sides = gripper_points_and_sides(
             grip,
             opt.gripper_points,
             include_wrist=opt.include_wrist,
             approach_distance=opt.approach_distance,
+            margin=opt.collision_margin,
         )
+        openings = opt.opening(cands.widths, grip.max_opening)
         limit = opt.max_results if opt.max_results is not None else len(cands)
         chosen: list[int] = []
         n_checked = n_unreach = n_coll = 0
@@ -251,7 +261,10 @@ class GraspPlanner:
             n_checked += idx.numel()
             # Collisions first: one batched implicit-function call; IK (per pose) only on the rest.
             res = check_collisions(
-                scene, transform_gripper_points(cands.poses[idx].to(self.dtype), pts)
+                scene,
+                open_gripper_points(
+                    cands.poses[idx].to(self.dtype), pts, sides, openings[idx], grip.max_opening
+                ),
             )
             n_coll += int(res.collides.sum())
             for label in res.obstacle_labels():
@@ -316,7 +329,9 @@ class GraspPlanner:
         pairs = sample_antipodal_pairs(
             target, opt.n_samples, threshold=opt.antipodal_threshold, generator=opt.seed
         )
-        keep = (pairs.width <= grip.max_opening) & (pairs.width >= opt.min_width)
+        keep = (pairs.width <= grip.max_opening - opt.opening_clearance) & (
+            pairs.width >= opt.min_width
+        )
         x1, x2 = pairs.x1[keep], pairs.x2[keep]
         if x1.shape[0] == 0:
             return Candidates.empty(), pairs
@@ -365,6 +380,7 @@ class GraspPlanner:
             opt.gripper_points,
             include_wrist=opt.include_wrist,
             approach_distance=opt.approach_distance,
+            margin=opt.collision_margin,
         )
         res = check_collisions(scene, transform_gripper_points(T.to(self.dtype), pts))
         reach = self._reachable(T)

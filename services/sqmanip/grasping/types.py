@@ -280,6 +280,16 @@ class PlanOptions:
     """Gripper points closer than this to the support plane count as touching it (m)."""
     min_width: float = 0.002
     """Pairs closer than this (m) are degenerate (a sliver, not a grasp) and dropped."""
+    open_margin: float = 0.02
+    """The hand is opened to ``min(width + open_margin, max_opening)`` to execute a grasp
+    (:meth:`opening`), and the collision check holds the fingers exactly that wide."""
+    opening_clearance: float = 0.0
+    """Pairs wider than ``max_opening - opening_clearance`` are dropped (m). Off by default: in
+    the closed-loop benchmark recognized widths err on the wide side (a 6 cm box side fitted
+    7.8 cm wide) and a clearance drops exactly those grasps, which the simulator executes fine."""
+    collision_margin: float = 0.003
+    """Every gripper box is inflated by this much for the collision checks (m): recognition
+    error of a few mm must not turn a planned clearance into contact."""
     check_target: bool = True
     """Also reject grasps whose open gripper penetrates the target itself (palm, finger backs)."""
     chunk_size: int = 256
@@ -317,6 +327,14 @@ class PlanOptions:
                 f"support_clearance must be finite, got {self.support_clearance!r}"
             )
         _positive("min_width", float(self.min_width), allow_zero=True)
+        for name in ("open_margin", "opening_clearance", "collision_margin"):
+            _positive(name, float(getattr(self, name)), allow_zero=True)
+
+    def opening(self, width: float | torch.Tensor, max_opening: float) -> float | torch.Tensor:
+        """Finger opening (m) to execute a grasp of contact distance ``width``."""
+        if torch.is_tensor(width):
+            return torch.clamp(width + self.open_margin, max=max_opening)
+        return float(min(float(width) + self.open_margin, max_opening))
 
 
 def parts_tuple(name: str, parts: Sequence[Superquadric]) -> tuple[Superquadric, ...]:

@@ -7,6 +7,8 @@ Lengths are metres.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from pydantic import Field
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
@@ -91,6 +93,20 @@ class PerceptionSettings(BaseSettings):
     """Regulariser ``w k^2`` keeping tapering near 0 unless the data need it."""
     size_bounds: tuple[float, float] = (0.004, 0.6)
     """Half-extent bounds (m) of fitted parts (Table 3.1 uses [0.03, 0.53] for its data)."""
+    # --- learned recognition (method = network | hybrid, segmentation = network) -------------
+    network_model_dir: Path | None = None
+    """DSQNet / SQNet / DSQNet+ checkpoint directory (``config.toml`` + ``model.pt``); None:
+    ``models/dsqnet_cpu`` under the working directory, else under the repository."""
+    segmentation_model_dir: Path | None = None
+    """DGCNN segmentation checkpoint directory; None: ``models/segnet_cpu`` (not shipped)."""
+    hybrid_iterations: int = Field(60, ge=0)
+    """Adam steps refining the network's prediction (``method='hybrid'``)."""
+    hybrid_learning_rate: float = Field(0.05, gt=0)
+    hybrid_hidden_weight: float = Field(0.5, ge=0)
+    """Hidden-side pseudo-points of the network's surface per observed point (the pull toward
+    the network where the view says nothing)."""
+    hybrid_seen_radius: float = Field(0.01, gt=0)
+    """Network surface points farther than this from every observed point are hidden (m)."""
     torch_threads: int | None = 1
     """Torch threads while fitting (restored afterwards; None: leave torch's setting). The
     fitter's tensors are small, so intra-op threads only add synchronisation, which on a

@@ -88,6 +88,25 @@ def _frame(points: np.ndarray, plane: PlaneFit | None) -> _Frame:
     return _Frame(np.stack([x, y, z], 1), origin)
 
 
+def world_part(
+    params: torch.Tensor, R: torch.Tensor, t: torch.Tensor, frame: _Frame
+) -> Superquadric:
+    """A fitted row ``(a1 a2 a3 e1 e2 k ...)`` with its pose in the segment frame -> the world
+    superquadric (rotation re-orthonormalised against float32 round-off)."""
+    p = params.double().numpy()
+    pose = np.eye(4)
+    pose[:3, :3] = frame.R @ R.double().numpy()
+    pose[:3, 3] = frame.R @ t.double().numpy() + frame.origin
+    u, _, vt = np.linalg.svd(pose[:3, :3])
+    pose[:3, :3] = u @ vt
+    return Superquadric(
+        (float(p[0]), float(p[1]), float(p[2])),
+        (float(p[3]), float(p[4])),
+        pose=pose,
+        taper=float(p[5]),
+    )
+
+
 def _rz(yaw: float) -> np.ndarray:
     c, s = math.cos(yaw), math.sin(yaw)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
@@ -546,20 +565,7 @@ def _fit(segments, plane, viewpoint, table_points, settings, amodal, deformable,
     for si in range(len(segments)):
         idx = torch.nonzero(owner_t == si).squeeze(-1)
         best = int(idx[torch.argmin(loss[idx])])
-        p = params[best].double().numpy()
-        frame = frames[si]
-        pose = np.eye(4)
-        pose[:3, :3] = frame.R @ R[best].double().numpy()
-        pose[:3, 3] = frame.R @ t[best].double().numpy() + frame.origin
-        # re-orthonormalise (float32 round-off)
-        u, _, vt = np.linalg.svd(pose[:3, :3])
-        pose[:3, :3] = u @ vt
-        part = Superquadric(
-            (float(p[0]), float(p[1]), float(p[2])),
-            (float(p[3]), float(p[4])),
-            pose=pose,
-            taper=float(p[5]),
-        )
+        part = world_part(params[best], R[best], t[best], frames[si])
         residual = float((delta[best].double() ** 2).mean())
         results.append(FitResult(part, residual, float(loss[best])))
     return results

@@ -2,7 +2,9 @@
 
 ``Recognizer.recognize`` is synchronous and deterministic for ``options.seed``; the gRPC server
 and tests call it in-process. ``timings_ms`` holds ``preprocess`` (crop, plane RANSAC and
-removal, per-segment re-sampling), ``segment``, ``fit`` and ``total`` (including validation).
+removal, per-segment re-sampling), ``segment``, ``fit`` and ``total`` (including validation);
+``method='network' | 'hybrid'`` add ``network`` (the network's share of ``fit``). Learned
+networks (:mod:`.learned.serving`) are imported and loaded only when a request asks for them.
 """
 
 from __future__ import annotations
@@ -14,14 +16,13 @@ import time
 import numpy as np
 import torch
 
-from sqmanip.errors import UnimplementedError
 from sqmanip.geometry import radial_distance
 
 from .config import PerceptionSettings
 from .fit import fit_segments
 from .mvbb import mvbb_fit
 from .preprocess import crop_mask, fit_plane_ransac, resample
-from .segment import cluster_with_groups, segments_from_labels
+from .segment import cluster, cluster_with_groups, segments_from_labels
 from .types import RecognizedObject, RecognizeRequest, Scene
 from .validate import validate_request
 
@@ -57,14 +58,63 @@ def _group_parts(
     groups = list(range(len(segments)))
     if plane is None:
         return groups
-    grounded = [float(plane.signed_distance(points[seg]).min()) <= contact for seg in segments]
+    heights = [plane.signed_distance(points[seg]) for seg in segments]
+    grounded = [float(h.min()) <= contact for h in heights]
+    anchored = list(grounded)
     for i, cl in enumerate(clusters):  # segments are sorted largest first
         if grounded[i]:
             continue
         base = next((j for j, c in enumerate(clusters) if c == cl and grounded[j]), None)
+        if base is None:
+            base = _stacked_base(points, segments, heights, contact, i)
         if base is not None:
             groups[i] = groups[base]
+            anchored[i] = True
+    # a floating segment of the same cluster as one anchored above (a neck on a shoulder that
+    # joined the body across the overhang's gap) joins that object too
+    changed = True
+    while changed:
+        changed = False
+        for i, cl in enumerate(clusters):
+            if anchored[i]:
+                continue
+            j = next((j for j, c in enumerate(clusters) if c == cl and anchored[j]), None)
+            if j is not None:
+                groups[i], anchored[i], changed = groups[j], True, True
     return groups
+
+
+STACK_GAP = 0.03
+"""Largest vertical gap (m) in the cloud between a floating segment and the grounded segment right
+below it for both to count as one object (an overhang, e.g. a bottle's shoulder, hides a band of
+the body under it from a camera above and splits the Euclidean cluster there)."""
+
+
+def _stacked_base(
+    points: np.ndarray,
+    segments: list[np.ndarray],
+    heights: list[np.ndarray],
+    contact: float,
+    i: int,
+) -> int | None:
+    """The segment (largest first) directly under floating segment ``i``: it starts near the
+    plane (within ``3 contact``: plane removal and self-occlusion eat an object's lowest band),
+    its top lies at most ``STACK_GAP`` below segment ``i``'s bottom, and the centroid of either
+    lies inside the other's horizontal bounding box (world x, y; the support plane is near level)."""
+    lo_i = float(heights[i].min())
+    xy_i = points[segments[i], :2]
+    for j, seg in enumerate(segments):
+        if j == i or float(heights[j].min()) > 3 * contact:
+            continue
+        gap = lo_i - float(heights[j].max())
+        if gap > STACK_GAP or lo_i <= float(heights[j].min()):
+            continue
+        xy_j = points[seg, :2]
+        inside_j = np.all((xy_i.mean(0) >= xy_j.min(0)) & (xy_i.mean(0) <= xy_j.max(0)))
+        inside_i = np.all((xy_j.mean(0) >= xy_i.min(0)) & (xy_j.mean(0) <= xy_i.max(0)))
+        if inside_j or inside_i:
+            return j
+    return None
 
 
 def _members(groups: list[int]) -> list[list[int]]:
@@ -76,26 +126,53 @@ def _members(groups: list[int]) -> list[list[int]]:
 
 
 class Recognizer:
-    """Training-free recognizer: RANSAC support plane, clustering and superquadric fitting."""
+    """RANSAC support plane, segmentation (clustering, labels or the segmentation network) and
+    per-segment shapes (optimisation fitting, MVBB, the recognition network, or the network
+    refined by the fitter: ``method='hybrid'``). Networks load lazily, once per process."""
 
     def __init__(self, settings: PerceptionSettings | None = None) -> None:
         self.settings = settings or PerceptionSettings()
+
+    def _network_segments(
+        self, obj_pts: np.ndarray, viewpoint: np.ndarray | None, seed: int
+    ) -> tuple[list[np.ndarray], list[int]]:
+        """Euclidean clusters are objects; the segmentation network (A.2) splits each into
+        parts. Returns index arrays into ``obj_pts`` (largest object first) and the object id
+        of each."""
+        from .learned import serving
+
+        s = self.settings
+        objects = cluster(obj_pts, s.model_copy(update={"split_touching": False}), viewpoint)
+        segments: list[np.ndarray] = []
+        groups: list[int] = []
+        for gi, idx in enumerate(objects):
+            parts = serving.segment_object(
+                obj_pts[idx],
+                model_dir=s.segmentation_model_dir,
+                threads=s.torch_threads,
+                seed=seed,
+                min_points=MIN_FIT_POINTS,
+            )
+            segments += [idx[p] for p in parts]
+            groups += [gi] * len(parts)
+        return segments, groups
 
     def recognize(self, request: RecognizeRequest) -> Scene:
         t_start = time.perf_counter()
         s = self.settings
         valid = validate_request(request, s)
         opt = request.options
-        if opt.method in ("network", "hybrid"):
-            raise UnimplementedError(
-                f"options.method={opt.method!r} needs a trained recognition network, which this "
-                "build does not ship yet; use method='optimization' or 'mvbb'"
-            )
-        if opt.segmentation == "network" and valid.labels is None:
-            raise UnimplementedError(
-                "options.segmentation='network' needs a trained segmentation network, which this "
-                "build does not ship yet; use 'clustering' or pass labels"
-            )
+        learned = None
+        if opt.method in ("network", "hybrid") or (
+            opt.segmentation == "network" and valid.labels is None
+        ):
+            from .learned import serving as learned  # torch networks: loaded on first use
+
+            # fail fast (PreconditionError naming the path) before any work is done
+            if opt.method in ("network", "hybrid"):
+                learned.get_recognizer(s.network_model_dir)
+            if opt.segmentation == "network" and valid.labels is None:
+                learned.get_segmenter(s.segmentation_model_dir)
         rng = np.random.default_rng(opt.seed)
         points = valid.points
 
@@ -132,6 +209,8 @@ class Recognizer:
         if valid.labels is not None:
             local_segments = segments_from_labels(valid.labels[object_idx], MIN_FIT_POINTS)
             groups = list(range(len(local_segments)))
+        elif opt.segmentation == "network":
+            local_segments, groups = self._network_segments(obj_pts, valid.viewpoint, opt.seed)
         else:
             local_segments, clusters = cluster_with_groups(obj_pts, s, valid.viewpoint)
             groups = _group_parts(obj_pts, local_segments, clusters, plane, s.part_contact)
@@ -154,9 +233,33 @@ class Recognizer:
         t_pre += time.perf_counter() - t0
 
         t0 = time.perf_counter()
+        t_net = 0.0
         if opt.method == "mvbb":
             parts = [mvbb_fit(points[idx], plane if opt.amodal else None) for idx in segments]
             residuals = [_residual(c, p) for c, p in zip(clouds, parts, strict=True)]
+        elif opt.method in ("network", "hybrid"):
+            parts = learned.predict_parts(
+                clouds, model_dir=s.network_model_dir, threads=s.torch_threads, seed=opt.seed
+            )
+            t_net = time.perf_counter() - t0
+            if opt.method == "hybrid":
+                from .learned.hybrid import refine_parts
+
+                fits = refine_parts(
+                    clouds,
+                    parts,
+                    plane=plane,
+                    viewpoint=valid.viewpoint,
+                    table_points=table,
+                    settings=s,
+                    amodal=opt.amodal,
+                    deformable=opt.deformable,
+                    seed=opt.seed,
+                )
+                parts = [f.part for f in fits]
+                residuals = [f.residual for f in fits]
+            else:
+                residuals = [_residual(c, p) for c, p in zip(clouds, parts, strict=True)]
         else:
             fits = fit_segments(
                 clouds,
@@ -195,6 +298,7 @@ class Recognizer:
             "preprocess": 1e3 * t_pre,
             "segment": 1e3 * t_seg,
             "fit": 1e3 * t_fit,
+            **({"network": 1e3 * t_net} if opt.method in ("network", "hybrid") else {}),
             "total": 1e3 * total,
         }
         log.info(

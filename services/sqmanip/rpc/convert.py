@@ -19,7 +19,7 @@ import dataclasses
 import json
 import re
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -41,12 +41,14 @@ from sqmanip.perception.types import (
 )
 from sqmanip.sim.actions import ActionResult, ObjectState, Observation, SimState
 from sqmanip.sim.camera import Intrinsics
-from sqmanip.sim.scene import SCENE_KINDS, SceneSpec
 from sqmanip.v1 import common_pb2 as pb
 from sqmanip.v1 import dynamics_pb2 as dynamics_pb
 from sqmanip.v1 import grasp_pb2 as grasp_pb
 from sqmanip.v1 import perception_pb2 as perception_pb
 from sqmanip.v1 import sim_pb2 as sim_pb
+
+if TYPE_CHECKING:  # sqmanip.sim.scene imports pybullet (and prints a banner): only where needed
+    from sqmanip.sim.scene import SceneSpec
 
 F32 = np.dtype("<f4")
 I32 = np.dtype("<i4")
@@ -445,6 +447,8 @@ def scene_spec_from_dict(data: Any, field: str = "scene") -> SceneSpec:
     ``field`` (wrong types included, which the dataclasses would raise as TypeError)."""
     if not isinstance(data, Mapping):
         raise ValidationError(f"{field}: expected a JSON object, got {type(data).__name__}")
+    from sqmanip.sim.scene import SceneSpec
+
     try:
         return SceneSpec.from_dict(dict(data))
     except ValidationError as exc:
@@ -626,6 +630,8 @@ def reset_request_to_proto(
     """Arguments of :meth:`Simulator.reset` -> ResetRequest (``scene`` as spec or its dict)."""
     msg = sim_pb.ResetRequest(kind=kind, object_kinds=list(object_kinds))
     if scene is not None:
+        from sqmanip.sim.scene import SceneSpec
+
         spec = scene if isinstance(scene, SceneSpec) else scene_spec_from_dict(scene)
         msg.scene_json = scene_spec_to_json(spec)
     if seed is not None:
@@ -646,6 +652,8 @@ def reset_request_from_proto(msg: sim_pb.ResetRequest) -> dict[str, Any]:
     if msg.HasField("n_objects"):
         kwargs["n_objects"] = int(msg.n_objects)
     if msg.kind:
+        from sqmanip.sim.scene import SCENE_KINDS
+
         if msg.kind not in SCENE_KINDS:
             raise ValidationError(f"kind: expected one of {SCENE_KINDS}, got {msg.kind!r}")
         kwargs["kind"] = msg.kind

@@ -76,6 +76,30 @@ def _size(message: Any) -> int:
         return -1
 
 
+class _Undecodable:
+    """Stands in for a request whose bytes are not the method's protobuf message: the handler
+    answers INVALID_ARGUMENT instead of grpc's own UNKNOWN ("Unexpected DecodeError")."""
+
+    def __init__(self, error: str) -> None:
+        self.error = error
+
+    def ByteSize(self) -> int:  # noqa: N802 - protobuf's name, for the request log
+        return -1
+
+
+def _safe_deserializer(deserializer: Callable[[bytes], Any] | None):
+    if deserializer is None:
+        return None
+
+    def deserialize(data: bytes) -> Any:
+        try:
+            return deserializer(data)
+        except Exception as exc:  # noqa: BLE001 - DecodeError and friends: a client's bad bytes
+            return _Undecodable(f"{type(exc).__name__}: {exc}")
+
+    return deserialize
+
+
 class ErrorMappingInterceptor(grpc.aio.ServerInterceptor):
     """Wraps every unary-unary handler: maps exceptions to statuses and logs one INFO line
     ``method=... size=... status=... ms=... rid=...`` per request."""
@@ -96,6 +120,10 @@ class ErrorMappingInterceptor(grpc.aio.ServerInterceptor):
             rid = _request_id(context)
             status = "OK"
             try:
+                if isinstance(request, _Undecodable):
+                    raise errors.ValidationError(
+                        f"request: not a valid message for {method} ({request.error})"
+                    )
                 result = inner(request, context)
                 if asyncio.iscoroutine(result):
                     result = await result
@@ -123,6 +151,6 @@ class ErrorMappingInterceptor(grpc.aio.ServerInterceptor):
 
         return grpc.unary_unary_rpc_method_handler(
             wrapper,
-            request_deserializer=handler.request_deserializer,
+            request_deserializer=_safe_deserializer(handler.request_deserializer),
             response_serializer=handler.response_serializer,
         )

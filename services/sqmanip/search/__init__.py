@@ -3,6 +3,7 @@ dynamics, the search-for-grasp objective and the sampling MPC. No transport code
 
 from .actions import (
     ActionSampler,
+    GraspSource,
     KinematicPushDynamics,
     PickAndPlace,
     Push,
@@ -11,9 +12,9 @@ from .actions import (
     apply_actions,
 )
 from .config import SearchConfig
-from .existence import ExistenceModel, existence_reference
+from .existence import ExistenceModel, depth_condition, existence_reference
 from .graspability import GraspabilityModel, target_grasps
-from .mpc import Decision, SearchPlanner
+from .mpc import Decision, GraspCheck, SearchPlanner
 from .objective import FGEvaluator, Maps, objective_value, sequence_cost
 from .shelf import Obstacles, PoseGrid, SceneState, ShelfSpec, TargetSpec, make_pose_grid
 
@@ -22,6 +23,8 @@ __all__ = [
     "Decision",
     "ExistenceModel",
     "FGEvaluator",
+    "GraspCheck",
+    "GraspSource",
     "GraspabilityModel",
     "KinematicPushDynamics",
     "Maps",
@@ -37,6 +40,7 @@ __all__ = [
     "ShelfSpec",
     "TargetSpec",
     "apply_actions",
+    "depth_condition",
     "existence_reference",
     "make_pose_grid",
     "objective_value",

@@ -27,6 +27,7 @@ from typing import Literal, Protocol
 import numpy as np
 import torch
 
+from sqmanip.geometry import Superquadric
 from sqmanip.geometry.sampling import sample_surface
 from sqmanip.grasping import PANDA_HAND, GripperSpec, RuleOptions, gripper_points
 from sqmanip.grasping.rule_based import rule_based_candidates
@@ -148,8 +149,36 @@ def world_half_extents(scene: SceneState) -> torch.Tensor:
     return (scene.poses[:, :3, :3].abs() @ scene.params[:, :3].unsqueeze(-1)).squeeze(-1)
 
 
+class GraspSource:
+    """C.3 rule-based grasp candidates ``(G, 4, 4)`` of one lone object (no collision check).
+
+    ``planner=None``: in-process (:func:`rule_based_candidates`). Otherwise any object with
+    :class:`sqmanip.grasping.GraspPlanner`'s ``plan`` -- the grasp service through
+    :class:`sqmanip.rpc.client.RemoteGraspPlanner` when search runs as a service -- asked for
+    the ``rule_based`` candidates of the object alone: no support plane, no obstacles, no
+    result limit (the search makes its own afterimage checks, C.3). The answer for a shape and
+    orientation is reused by translation (:meth:`ActionSampler.grasps`), so a service is asked
+    once per object shape and turn, not per predicted scene."""
+
+    def __init__(self, planner=None, dtype: torch.dtype = torch.float32) -> None:
+        self.planner, self.dtype = planner, dtype
+
+    def __call__(self, obj: Superquadric, rule: RuleOptions) -> torch.Tensor:
+        if self.planner is None:
+            cand = rule_based_candidates([obj], options=rule, dtype=self.dtype)
+            return cand.poses if len(cand) else torch.zeros(0, 4, 4, dtype=self.dtype)
+        from sqmanip.grasping.types import Environment, PlanOptions
+
+        options = PlanOptions(method="rule_based", rule=rule, max_results=None, check_target=False)
+        grasps = self.planner.plan([obj], (), Environment(support_normal=None), None, options)
+        if not grasps:
+            return torch.zeros(0, 4, 4, dtype=self.dtype)
+        return torch.as_tensor(np.stack([g.pose for g in grasps]), dtype=self.dtype)
+
+
 class ActionSampler:
-    """Valid push and pick-and-place actions for a scene (5.4.4)."""
+    """Valid push and pick-and-place actions for a scene (5.4.4); grasp candidates of the
+    objects come from ``grasp_source`` (in-process by default)."""
 
     def __init__(
         self,
@@ -157,8 +186,11 @@ class ActionSampler:
         config: SearchConfig,
         gripper: GripperSpec = PANDA_HAND,
         dtype: torch.dtype = torch.float32,
+        grasp_source: GraspSource | None = None,
     ) -> None:
         self.shelf, self.config, self.gripper, self.dtype = shelf, config, gripper, dtype
+        self.grasp_source = grasp_source or GraspSource(dtype=dtype)
+        self._local: dict[bytes, torch.Tensor] = {}
         self.boards = Obstacles.from_parts(shelf.boxes(), dtype)
         closed = gripper_points(gripper, 512, include_wrist=True, opening=0.0)
         self.closed = cluster_points(closed, 16, dtype)
@@ -221,14 +253,37 @@ class ActionSampler:
 
     # --- pick and place --------------------------------------------------------------------
 
+    def candidate_grasps(self, scene: SceneState, i: int) -> torch.Tensor:
+        """C.3 grasps ``(G, 4, 4)`` of object ``i`` before collision checks: the candidates
+        translate with the object, so they are computed (by :attr:`grasp_source`) once per
+        shape and orientation and shifted."""
+        T = scene.poses[i].double()
+        key = (
+            np.round(scene.params[i].double().numpy(), 5).tobytes()
+            + np.round(T[:3, :3].numpy(), 4).tobytes()
+            + bytes([int(scene.kinds[i])])
+        )
+        local = self._local.get(key)
+        if local is None:
+            obj = scene.objects()[i]
+            centred = obj.pose.copy()
+            centred[:3, 3] = 0.0
+            local = self.grasp_source(dataclasses.replace(obj, pose=centred), self.rule)
+            local = local.to(self.dtype)
+            if len(self._local) >= 2048:
+                self._local.clear()
+            self._local[key] = local
+        cand = local.clone()
+        cand[:, :3, 3] += T[:3, 3].to(cand.dtype)
+        return cand
+
     def grasps(self, scene: SceneState, i: int) -> torch.Tensor:
         """Collision-free C.3 grasps ``(G, 4, 4)`` of object ``i`` (afterimage test)."""
-        obj = scene.objects()[i]
-        cand = rule_based_candidates([obj], options=self.rule, dtype=self.dtype)
-        if len(cand) == 0:
-            return torch.zeros(0, 4, 4, dtype=self.dtype)
-        free = self._free(self._others(scene, i), self.after, cand.poses)
-        return cand.poses[free]
+        cand = self.candidate_grasps(scene, i)
+        if cand.shape[0] == 0:
+            return cand
+        free = self._free(self._others(scene, i), self.after, cand)
+        return cand[free]
 
     def place_spots(
         self, scene: SceneState, i: int, grasp: torch.Tensor, keep_out: torch.Tensor | None
@@ -268,12 +323,46 @@ class ActionSampler:
 
     # --- sampling --------------------------------------------------------------------------
 
-    def candidates(self, scene: SceneState, keep_out: torch.Tensor | None):
-        """``I_p`` and ``I_g`` with their valid pushes / (grasps, spots) per object."""
+    def push_distances(
+        self, scene: SceneState, i: int, direction: int, keep_out: torch.Tensor | None
+    ) -> list[float]:
+        """The push lengths ``d`` (5.4.4) after which object ``i``, sliding ``d`` towards
+        ``direction``, has not swept into a place where the target may stand (``keep_out
+        (Q, 3)`` discs ahead of it, see :meth:`place_spots`; the object as its world-axis
+        box). The push model moves the pushed
+        object only, but the target there would be shoved along (into a wall, out of every
+        grasp): the same no-contact rule as for a place spot (ours)."""
+        ds = [float(d) for d in self.config.push_distances]
+        if keep_out is None or keep_out.numel() == 0:
+            return ds
+        c = scene.poses[i, :2, 3].double()
+        hx, hy = (float(v) for v in world_half_extents(scene)[i, :2])
+        rel = keep_out[:, :2].double() - c
+        along = rel[:, 1] * float(direction)  # pushes go along +-y
+        rk = keep_out[:, 2].double()
+        # the object's box (world half extents) slides along y: it meets the disc ahead of it
+        # whose centre is within hx + r of its x, once it has moved along - hy - r
+        ahead = (along > 0) & (rel[:, 0].abs() < hx + rk)
+        if not bool(ahead.any()):
+            return ds
+        first = float((along[ahead] - hy - rk[ahead]).min())
+        return [d for d in ds if d - self.config.push_gap <= first]
+
+    def candidates(
+        self, scene: SceneState, keep_out: torch.Tensor | None, push_keep_out: bool = True
+    ):
+        """``I_p`` and ``I_g`` with their valid pushes / (grasps, spots) per object; a push is
+        ``(direction, gripper pose, start, lengths)``. ``push_keep_out=False`` lets pushes
+        sweep where the target may stand (the fallback when nothing else is left)."""
         pushes, picks = {}, {}
+        push_out = keep_out if push_keep_out else None
         for i in range(len(scene)):
             if self.config.actions in ("both", "push"):
-                p = self.push_poses(scene, i)
+                p = [
+                    (*q, ds)
+                    for q in self.push_poses(scene, i)
+                    if (ds := self.push_distances(scene, i, q[0], push_out))
+                ]
                 if p:
                     pushes[i] = p
             if self.config.actions in ("both", "pick_and_place"):
@@ -302,10 +391,8 @@ class ActionSampler:
         for j in rng.integers(0, len(pool), size=n):
             kind, i = pool[int(j)]
             if kind == "push":
-                direction, T, tcp = pushes[i][int(rng.integers(len(pushes[i])))]
-                d = float(
-                    self.config.push_distances[int(rng.integers(len(self.config.push_distances)))]
-                )
+                direction, T, tcp, ds = pushes[i][int(rng.integers(len(pushes[i])))]
+                d = ds[int(rng.integers(len(ds)))]
                 v = np.array([0.0, direction * d, 0.0])
                 out.append(Push("push", i, direction, d, T, tcp, v))
             else:

@@ -42,7 +42,15 @@ class SearchConfig:
     t_near: float = 0.0
     t_far: float = 1.5
     mse_threshold: float = 0.001
-    """f_d(x) = 1 iff the mean squared depth difference over the image is below this (C.2)."""
+    """f_d(x) = 0 when the mean squared difference between the depth rendered with and without
+    the target at x, over the target's own pixels (those whose ray meets it), reaches this (C.2;
+    the mean over the target's pixels, not the whole image, see :mod:`.existence`)."""
+    found_pixels: int = 100
+    """f_d(x) = 0 also when more than this many camera pixels would see the target at x: the
+    5.5.1 detection criterion, i.e. the target would have been found there."""
+    seen_margin: float = 0.02
+    """A pixel sees the target when its depth with the target is this much (m) nearer than
+    without: differences below it are left to the MSE test (recognition error tolerance) (ours)."""
     n_target_points: int = 512
     """n_o target surface points for f_c (C.2.10)."""
     fc_shrink: float = 0.005
@@ -104,6 +112,12 @@ class SearchConfig:
             raise ValidationError(f"gamma must be in (0, 1], got {self.gamma!r}")
         if not (math.isfinite(self.alpha) and self.alpha >= 0):
             raise ValidationError(f"alpha must be finite and >= 0, got {self.alpha!r}")
+        if not (isinstance(self.found_pixels, int) and self.found_pixels >= 0):
+            raise ValidationError(
+                f"found_pixels must be an integer >= 0, got {self.found_pixels!r}"
+            )
+        if not (math.isfinite(self.seen_margin) and self.seen_margin >= 0):
+            raise ValidationError(f"seen_margin must be finite and >= 0, got {self.seen_margin!r}")
         if not (0.0 < self.render_scale <= 1.0):
             raise ValidationError(f"render_scale must be in (0, 1], got {self.render_scale!r}")
         if self.n_gripper_points < 16:

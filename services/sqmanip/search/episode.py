@@ -10,11 +10,26 @@ pick-and-place in the simulator. When the planner answers ``grasp`` (visible and
 target is grasped and lifted (``Simulator.grasp``); success means it is held. The take-out path
 is the reversed 30 cm approach, whose afterimage ``g`` already checked collision-free (C.3).
 
+Grasp executability. ``g`` (C.3) checks the afterimage of the gripper and links 6-7 only;
+the simulator also solves the IK of the pre-grasp, grasp and lift poses (from its home
+configuration) and checks the whole arm against the shelf and the objects, and refused about
+nine in ten grasps ``g`` accepted (the elbow, link 4, hits the shelf's floor board for grasps low
+or from the side; links 5-6 hit a neighbour at the pre-grasp pose). With an in-process
+simulator the runner therefore hands the planner a :class:`SimGraspCheck` -- the simulator's own
+IK (the same two deterministic seeds it tries first, so the same joint angles) and collision
+queries, without moving the robot -- and ``g(x*)`` counts only the grasps that pass; the
+executed grasp is one of them. The planner's grasp poses put the TCP
+``GripperSpec.flange_offset`` in front of the flange, the simulator's 1.8 mm further
+(:func:`sqmanip.grasping.reachability.sim_tool_pose` converts). A remote simulator (the
+service) has no such query: there the planner's ``g`` decides and the simulator may refuse.
+
 Choices (ours): the target's pose, once visible, is the simulator's ground truth (the thesis
 estimates it from the segmented points; a red upright cylinder of known size); ``f`` is
 recomputed from each observation (no prior carried across real steps: an executed push may
 also move the target); a refused action (unreachable, colliding: ``PreconditionError``) counts
-as a step that changed nothing. An episode never raises for a scene without a solution: it ends
+as a step that changed nothing, and so does an executed action after which no object moved
+more than 5 mm (a push against a wall or the target): both are banned from the next decisions
+until something changes. An episode never raises for a scene without a solution: it ends
 with a reason (``no valid action``, ``step limit``, ``grasp failed``...).
 """
 
@@ -26,13 +41,13 @@ from collections.abc import Callable, Iterator
 from typing import Any, Literal
 
 import numpy as np
-import torch
 
 from sqmanip.errors import PreconditionError, SQManipError, ValidationError
 from sqmanip.geometry import Superquadric
 from sqmanip.sim import GRIPPER_MAX_WIDTH, Observation, Simulator
 
 from .actions import Push
+from .execution import SimGraspCheck
 from .mpc import Decision, SearchPlanner
 from .scenarios import FOUND_PIXELS, SHELF_CAMERA, ShelfScenario, shelf_camera, shelf_spec
 
@@ -111,6 +126,8 @@ class EpisodeRunner:
         """Refused actions re-planned per step before a refusal counts as a step."""
         self.shelf = shelf_spec(sim)
         self.camera = shelf_camera(sim)
+        self.grasp_check = SimGraspCheck(sim, grasp_width) if isinstance(sim, Simulator) else None
+        """Executability of the target's grasps (in-process simulator only; see the module)."""
 
     # --- perception ---------------------------------------------------------------------------
 
@@ -201,6 +218,7 @@ class EpisodeRunner:
                     bool(refused)
                     and (_action_key(a, "") in refused or _action_key(a, "grasp") in refused)
                 ),
+                grasp_check=self.grasp_check if visible else None,
             )
             times.update({f"plan_{k}": v for k, v in d.timings_ms.items()})
             graspable = d.kind == "grasp"
@@ -234,7 +252,7 @@ class EpisodeRunner:
                 yield StepEvent(**base, executed=False, message=d.reason, timings_ms=times)
                 return self._end(found_step, None, steps, f"no solution: {d.reason}")
             t = time.perf_counter()
-            ok, msg = self._execute(d)
+            ok, msg, moved = self._execute(d)
             times["execute"] = (time.perf_counter() - t) * 1e3
             if msg.startswith("refused") and replans < self.max_replans:
                 # the robot did not move: ban the action and plan again, no step counted
@@ -245,7 +263,10 @@ class EpisodeRunner:
             yield StepEvent(**base, executed=ok, message=msg, timings_ms=times)
             steps += 1
             replans = 0
-            refused.clear()
+            if moved:
+                refused.clear()
+            else:  # nothing moved (a push against a wall or the target): do not repeat it
+                refused.add(_action_key(d.action, ""))
 
     def _end(self, found_step, grasp_step, steps, reason) -> EpisodeResult:
         return EpisodeResult(
@@ -258,20 +279,29 @@ class EpisodeRunner:
             events=[],
         )
 
-    def _execute(self, d: Decision) -> tuple[bool, str]:
+    def _execute(self, d: Decision) -> tuple[bool, str, bool]:
+        """``(success, message, moved)``: ``moved`` is False when no object moved 5 mm."""
+        from sqmanip.grasping.reachability import sim_tool_pose
+
         p = d.params
         try:
             if d.kind == "push":
                 r = self.sim.push(np.asarray(p["start"]), np.asarray(p["displacement"]))
             else:
                 r = self.sim.pick_and_place(
-                    np.asarray(p["grasp_pose"]), self.grasp_width, np.asarray(p["place_pose"])
+                    sim_tool_pose(np.asarray(p["grasp_pose"])),
+                    self.grasp_width,
+                    sim_tool_pose(np.asarray(p["place_pose"])),
                 )
                 if self.sim.get_state().held_object is not None:
                     self.sim.release()
         except (PreconditionError, ValidationError) as exc:
-            return False, f"refused: {exc}"
-        return bool(r.success), r.message
+            return False, f"refused: {exc}", False
+        moved = any(
+            float(np.linalg.norm(np.asarray(a.position) - np.asarray(b.position))) > 0.005
+            for a, b in zip(r.before.objects, r.after.objects, strict=False)
+        )
+        return bool(r.success), r.message, moved
 
     def _grasp_target(
         self, d: Decision, scenario: ShelfScenario, target_pose: np.ndarray
@@ -280,22 +310,24 @@ class EpisodeRunner:
         pose, highest first, until the simulator accepts one: it checks reachability and
         collisions of the whole robot with the shelf and the objects itself (its hand and arm are
         bulkier than the planner's gripper and links 6-7, and its approach is 10 cm, not 30)."""
+        from sqmanip.grasping.reachability import sim_tool_pose
+
         _, ev, _ = self.planner.models(self.shelf, scenario.target, self.camera)
         i = int(d.params["grid_index"])
-        T, valid = ev.gm.grasp_poses(torch.tensor([i]))
-        poses = [np.asarray(d.params["grasp_pose"])]
-        poses += [T[0, k].double().numpy() for k in range(T.shape[1]) if bool(valid[0, k])]
+        T, valid = self.planner.target_grasps(ev, i, target_pose)
+        keep = d.params.get("executable")  # the grasps SimGraspCheck passed, if it ran
+        ks = [k for k in range(len(T)) if valid[k] and (keep is None or k in keep)]
         # the grasps belong to the nearest grid pose: move them onto the observed target
         shift = np.zeros(3)
         shift[:2] = target_pose[:2, 3] - ev.em.grid.xy[i].double().numpy()
-        poses = [np.concatenate([p[:3, :3], (p[:3, 3] + shift)[:, None]], 1) for p in poses]
-        poses = [np.vstack([p, [0.0, 0.0, 0.0, 1.0]]) for p in poses]
+        best = np.asarray(d.params["grasp_pose"], np.float64).copy()
+        best[:3, 3] += shift
         # highest first: the hand then keeps farthest from the floor board (the best stays first)
-        poses = poses[:1] + sorted(poses[1:], key=lambda p: -p[2, 3])
+        poses = [best] + sorted((T[k] for k in ks), key=lambda p: -p[2, 3])
         last = "no grasp candidate"
         for pose in poses[:21]:
             try:
-                r = self.sim.grasp(pose, self.grasp_width)
+                r = self.sim.grasp(sim_tool_pose(pose), self.grasp_width)
             except (PreconditionError, ValidationError) as exc:
                 last = f"refused ({len(poses[:21])} grasps tried; last: {exc})"
                 continue

@@ -9,13 +9,20 @@ without inflation: a point collides when the centre of its 5 mm voxel is inside 
 the answer is exact up to half a voxel (:meth:`collision_free` keeps the exact culled point test
 of :meth:`Obstacles.hits` as the reference; the tests compare the two).
 
-``f_d(x) = 1`` iff the mean squared difference between the soft depth images (C.2.5-C.2.8,
-``p = 1000``, ``tau = 100``, ``[t_n, t_f] = [0, 1.5]``) rendered with and without the target at
-``x`` is below 0.001. The fast path computes the same test with three exact reductions:
+``f_d(x) = 1`` iff the depth images (C.2.5-C.2.8, ``p = 1000``, ``tau = 100``,
+``[t_n, t_f] = [0, 1.5]``) rendered with and without the target at ``x`` are "identical" on the
+target's own pixels -- the pixels whose ray meets the hypothesised target, i.e. where it would be
+visible if nothing hid it. The C.2 test is an MSE below 0.001; taken over the whole image
+(``W H`` = 18,849 pixels) it accepts a target that is mostly in plain view (a 5 x 10 cm target
+covers ~1 % of the image), so the mean is over the target's pixels instead, and a hypothesis is
+also rejected when more than ``found_pixels = 100`` camera pixels (5.5.1's detection criterion;
+one render pixel is ``1 / render_scale^2`` = 49 camera pixels) would see it nearer, by more than
+``seen_margin``, than the objects: the target would have been found there. The fast path computes
+it with three exact reductions:
 
 1. pixels whose ray misses the target's bounding box have identical depth with and without the
-   target (the ray samples and the integrand are unchanged there), so the image sum runs over the
-   target's footprint only -- still divided by the full ``W H``;
+   target (the ray samples and the integrand are unchanged there): only the target's footprint
+   matters, and the footprint is also the denominator of the mean;
 2. ``f_d`` matters only where ``f_c = 1`` (``f = f_d f_c``), i.e. where the target does not
    intersect any object; along a ray the occupancy of the union is then that of two disjoint
    sets, and the depth with the target is ``min(D_0, D_T)`` -- ``D_0`` the depth of the objects,
@@ -25,9 +32,11 @@ of :meth:`Obstacles.hits` as the reference; the tests compare the two).
    is rendered once and cached; per scene only ``D_0`` on the union of the footprints is rendered
    (with C.2.9 ellipsoid culling: a ray integrates only the objects whose ellipsoid it meets).
 
-Then ``f_d(x) = 1(sum_pix relu(D_0 - D_T(x))^2 / (W H) < 0.001)``. :func:`existence_reference`
-is the literal C.2 computation with :func:`sqmanip.geometry.render.render_depth` over one scene
-per candidate pose (used by the tests to check the fast path).
+Then, with ``Q(x)`` the footprint of ``x`` and ``e = relu(D_0 - D_T(x))``:
+``f_d(x) = 1(sum_Q e^2 / |Q| < 0.001) * 1(#{e > seen_margin} / render_scale^2 <= 100)``
+(:func:`depth_condition`). :func:`existence_reference` is the same test on full renders with
+:func:`sqmanip.geometry.render.render_depth`, one scene per candidate pose (the tests check the
+fast path against it).
 
 ``c = 1`` (the target is seen): ``f`` is 1 at the grid pose nearest the observed target pose only.
 """
@@ -87,6 +96,28 @@ def soft_depth_on_chords(
     return (entry + inside + A[:, -1] * (cfg.t_far - exit_)).clamp(cfg.t_near, cfg.t_far)
 
 
+def depth_condition(
+    pose: torch.Tensor,
+    d0: torch.Tensor,
+    d_t: torch.Tensor,
+    n_foot: torch.Tensor,
+    cfg: SearchConfig,
+    pixel_area: float,
+) -> torch.Tensor:
+    """``f_d (P,)`` as bool from the target's footprint entries (see the module doc).
+
+    ``pose (Q,)`` grid pose of each entry, ``d0 (Q,)`` depth without the target, ``d_t (Q,)``
+    depth of the target alone, ``n_foot (P,)`` footprint size of every pose (the mean's
+    denominator), ``pixel_area`` camera pixels per render pixel. A pose with no footprint
+    (never in view) passes."""
+    P = n_foot.shape[0]
+    e = (d0 - d_t).clamp_min(0)
+    sse = torch.zeros(P, dtype=e.dtype).index_add_(0, pose, e * e)
+    seen = torch.zeros(P, dtype=e.dtype).index_add_(0, pose, (e > cfg.seen_margin).to(e.dtype))
+    mse = sse / n_foot.clamp_min(1).to(e.dtype)
+    return (mse < cfg.mse_threshold) & (seen * pixel_area <= cfg.found_pixels)
+
+
 @dataclasses.dataclass
 class _Footprints:
     pose: torch.Tensor  # (Q,) grid pose index
@@ -112,6 +143,8 @@ class ExistenceModel:
         origin, dirs = self.camera.rays(self.dtype)
         self._origin, self._dirs = origin, dirs.reshape(-1, 3)
         self.n_pixels = self.camera.width * self.camera.height
+        self.pixel_area = camera.width * camera.height / self.n_pixels
+        """Camera pixels per render pixel (``1 / render_scale^2``)."""
         # f_c: target surface points (shrunk, C.2.10) in clusters, and the shelf part once
         pts, _ = sample_surface(
             torch.as_tensor(target.params(cfg.fc_shrink), dtype=torch.float64),
@@ -124,6 +157,8 @@ class ExistenceModel:
             self.points, self.point_centers, self.point_radii, grid.poses
         ).any(-1)
         self._foot = self._target_footprints()
+        self.n_foot = torch.bincount(self._foot.pose, minlength=len(grid))
+        """``(P,)`` render pixels on which the target at each grid pose would be visible."""
         # fast f_c: the target points are translations of one set per yaw, as the grasps of g
         from .graspability import VoxelAfterimage
 
@@ -268,9 +303,7 @@ class ExistenceModel:
             return out
         pixels, inverse = torch.unique(pix_i, return_inverse=True)
         d0 = self.object_depth(scene, pixels)[inverse]
-        sq = (d0 - d_t).clamp_min(0) ** 2
-        sse = torch.zeros(P, dtype=self.dtype).index_add_(0, pose_i, sq)
-        out = (sse / self.n_pixels) < self.config.mse_threshold
+        out = depth_condition(pose_i, d0, d_t, self.n_foot, self.config, self.pixel_area)
         return out & mask
 
     def evaluate(
@@ -301,9 +334,10 @@ class ExistenceModel:
 def existence_reference(
     model: ExistenceModel, scene: SceneState, poses: torch.Tensor | None = None
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Literal C.2: ``(f_d, f_c)`` as bool over the grid (or ``poses`` indices), with
-    :func:`render_depth` (ellipsoid culling) over one scene per pose (objects + target at ``x``)
-    against the render without the target, and the dense ``f_c`` over all 512 points."""
+    """Reference ``(f_d, f_c)`` as bool over the grid (or ``poses`` indices): full renders with
+    :func:`render_depth` (ellipsoid culling) of one scene per pose (objects + target at ``x``)
+    against the render without the target, compared on the target's own pixels (those of the
+    target rendered alone, see the module doc), and the dense ``f_c`` over all 512 points."""
     cfg = model.config
     idx = torch.arange(len(model.grid)) if poses is None else poses
     kw = dict(
@@ -315,6 +349,7 @@ def existence_reference(
     )
     d0 = render_depth(scene.params, scene.poses, model.camera, scene.kinds, **kw)
     tp = torch.as_tensor(model.target.params(), dtype=model.dtype)
+
     n = len(scene)
     B = idx.numel()
     params = torch.cat([scene.params.expand(B, n, 9), tp.expand(B, 1, 9)], 1)
@@ -323,7 +358,19 @@ def existence_reference(
     fd = torch.zeros(B, dtype=torch.bool)
     for s in range(0, B, 16):
         d = render_depth(params[s : s + 16], poses_b[s : s + 16], model.camera, kinds, **kw)
-        fd[s : s + 16] = ((d - d0) ** 2).mean((-1, -2)) < cfg.mse_threshold
+        d_t = render_depth(  # the target alone: its own pixels are where it meets the ray
+            tp.expand(d.shape[0], 1, 9),
+            poses_b[s : s + 16, n:],
+            model.camera,
+            kinds[n:],
+            **kw,
+        )
+        own = d_t < cfg.t_far - 1e-6  # (b, H, W) the target's pixels
+        e = (d0 - d).clamp_min(0)
+        n = own.sum((-1, -2)).clamp_min(1)
+        mse = (e * e * own).sum((-1, -2)) / n
+        seen = ((e > cfg.seen_margin) & own).sum((-1, -2)) * model.pixel_area
+        fd[s : s + 16] = (mse < cfg.mse_threshold) & (seen <= cfg.found_pixels)
     pts = model.points.reshape(-1, 3)
     world = (
         pts @ model.grid.poses[idx, :3, :3].transpose(-1, -2) + model.grid.poses[idx, None, :3, 3]

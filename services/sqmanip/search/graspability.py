@@ -64,10 +64,16 @@ from .shelf import Obstacles, PoseGrid, SceneState, ShelfSpec, TargetSpec, clust
 
 
 def target_grasps(
-    target: TargetSpec, theta: float, config: SearchConfig, dtype: torch.dtype = torch.float32
+    target: TargetSpec,
+    theta: float,
+    config: SearchConfig,
+    dtype: torch.dtype = torch.float32,
+    source=None,
 ) -> torch.Tensor:
     """Candidate grasp poses ``(K, 4, 4)`` in the frame of a target at the origin with yaw 0,
-    for the target turned by ``theta`` about z (C.3 rule; ``[]`` when none fits the gripper)."""
+    for the target turned by ``theta`` about z (C.3 rule; ``[]`` when none fits the gripper).
+    ``source`` (``(object, RuleOptions) -> (G, 4, 4)``, e.g. :class:`.actions.GraspSource`)
+    generates them; default in-process."""
     opt = RuleOptions(
         top_down=False,
         per_direction=config.grasp_heights,
@@ -83,9 +89,14 @@ def target_grasps(
         R = rot_z(torch.tensor(theta + math.radians(yaw), dtype=torch.float64))
         pose = np.eye(4)
         pose[:3, :3] = R.numpy()
-        cand = rule_based_candidates([target.superquadric(pose)], options=opt)
-        if len(cand):
-            T = cand.poses.clone()
+        if source is None:
+            cand = rule_based_candidates([target.superquadric(pose)], options=opt)
+            poses = cand.poses if len(cand) else None
+        else:
+            poses = source(target.superquadric(pose), opt)
+            poses = poses if poses.shape[0] else None
+        if poses is not None:
+            T = poses.clone().double()
             T[:, :3, :] = Rth.T @ T[:, :3, :]  # into the frame of the target with yaw theta
             out.append(T)
     if not out:
@@ -275,7 +286,9 @@ class GraspabilityModel:
         grid: PoseGrid,
         config: SearchConfig | None = None,
         gripper: GripperSpec = PANDA_HAND,
+        grasp_source=None,
     ) -> None:
+        """``grasp_source``: generator of the target's C.3 candidates (see :func:`target_grasps`)."""
         self.shelf, self.target, self.grid = shelf, target, grid
         self.config = cfg = config or SearchConfig()
         self.gripper = gripper
@@ -290,7 +303,7 @@ class GraspabilityModel:
         self.points, self.point_centers, self.point_radii = cluster_points(pts, 64, self.dtype)
         # candidates per distinct yaw of the grid, in the frame of the target (translation only)
         thetas = torch.unique(grid.theta)
-        sets = [target_grasps(target, float(t), cfg, self.dtype) for t in thetas]
+        sets = [target_grasps(target, float(t), cfg, self.dtype, grasp_source) for t in thetas]
         k_max = max((len(s) for s in sets), default=0)
         self.n_candidates = k_max
         self.local_grasps = torch.zeros(len(thetas), k_max, 4, 4, dtype=self.dtype)

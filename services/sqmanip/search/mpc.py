@@ -12,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Callable, Sequence
-from typing import Any, Literal
+from typing import Any, Literal, Protocol
 
 import numpy as np
 import torch
@@ -21,7 +21,15 @@ from sqmanip.errors import ValidationError
 from sqmanip.geometry import PinholeCamera, Superquadric
 from sqmanip.grasping import PANDA_HAND, GripperSpec
 
-from .actions import Action, ActionSampler, PickAndPlace, Push, PushDynamics, apply_actions
+from .actions import (
+    Action,
+    ActionSampler,
+    GraspSource,
+    PickAndPlace,
+    Push,
+    PushDynamics,
+    apply_actions,
+)
 from .config import SearchConfig
 from .existence import ExistenceModel
 from .graspability import GraspabilityModel
@@ -43,43 +51,14 @@ class Decision:
     reason: str = ""
 
 
-class _GraspCache:
-    """Rule-based C.3 grasps of an object (ray casting, the costliest part of sampling a
-    pick-and-place in a rollout) cached by shape and orientation: the candidates translate with
-    the object, so they are computed once per (params, rotation) and shifted; only the
-    afterimage collision test runs per predicted scene."""
+class GraspCheck(Protocol):
+    """Whether the robot can execute grasps of the target: ``(K, 4, 4)`` world grasp poses ->
+    ``(K,)`` bool. ``objects=False`` asks about the arm, the shelf and the robot's own IK only
+    (what no rearrangement can change); ``objects=True`` also about the objects now on the
+    shelf. :class:`sqmanip.search.episode.SimGraspCheck` answers with the simulator's own IK
+    and collision checks."""
 
-    def __init__(self, sampler: ActionSampler, size: int = 2048) -> None:
-        self.sampler, self.size = sampler, size
-        self._cache: dict[bytes, torch.Tensor] = {}
-
-    def grasps(self, scene: SceneState, i: int) -> torch.Tensor:
-        s = self.sampler
-        T = scene.poses[i].double()
-        key = (
-            np.round(scene.params[i].double().numpy(), 5).tobytes()
-            + np.round(T[:3, :3].numpy(), 4).tobytes()
-            + bytes([int(scene.kinds[i])])
-        )
-        local = self._cache.get(key)
-        if local is None:
-            obj = scene.objects()[i]
-            centred = obj.pose.copy()
-            centred[:3, 3] = 0.0
-            from sqmanip.grasping.rule_based import rule_based_candidates
-
-            obj0 = dataclasses.replace(obj, pose=centred)
-            cand = rule_based_candidates([obj0], options=s.rule, dtype=s.dtype)
-            local = cand.poses if len(cand) else torch.zeros(0, 4, 4, dtype=s.dtype)
-            if len(self._cache) >= self.size:
-                self._cache.clear()
-            self._cache[key] = local
-        if local.shape[0] == 0:
-            return local
-        cand = local.clone()
-        cand[:, :3, 3] += T[:3, 3].to(cand.dtype)
-        free = s._free(s._others(scene, i), s.after, cand)
-        return cand[free]
+    def __call__(self, poses: np.ndarray, objects: bool) -> np.ndarray: ...
 
 
 class SearchPlanner:
@@ -91,12 +70,16 @@ class SearchPlanner:
         dynamics: PushDynamics,
         grasp_generator: GripperSpec | None = None,
         config: SearchConfig | None = None,
+        grasp_planner=None,
     ) -> None:
+        """``grasp_planner``: where the C.3 grasp candidates of the target and the objects come
+        from (:class:`.actions.GraspSource`): ``None`` in-process, or a
+        :class:`sqmanip.grasping.GraspPlanner`-like object such as the grasp service's client."""
         self.dynamics = dynamics
         self.gripper = grasp_generator or PANDA_HAND
         self.config = config or SearchConfig()
+        self.grasp_source = GraspSource(grasp_planner)
         self._models: dict[Any, tuple[PoseGrid, FGEvaluator, ActionSampler]] = {}
-        self._grasp_cache: dict[int, _GraspCache] = {}
         self._corners: np.ndarray | None = None
 
     def models(self, shelf: ShelfSpec, target: TargetSpec, camera: PinholeCamera):
@@ -113,9 +96,8 @@ class SearchPlanner:
             cfg = self.config
             grid = make_pose_grid(shelf, target, cfg.resolution, cfg.n_theta)
             ex = ExistenceModel(shelf, target, grid, camera, cfg)
-            gm = GraspabilityModel(shelf, target, grid, cfg, self.gripper)
-            sampler = ActionSampler(shelf, cfg, self.gripper)
-            self._grasp_cache[id(sampler)] = _GraspCache(sampler)
+            gm = GraspabilityModel(shelf, target, grid, cfg, self.gripper, self.grasp_source)
+            sampler = ActionSampler(shelf, cfg, self.gripper, grasp_source=self.grasp_source)
             self._models[key] = (grid, FGEvaluator(ex, gm, cfg), sampler)
         return self._models[key]
 
@@ -130,11 +112,20 @@ class SearchPlanner:
         rng: np.random.Generator | int | None = None,
         prior: np.ndarray | torch.Tensor | None = None,
         reject: Callable[[Action], bool] | None = None,
+        grasp_check: GraspCheck | None = None,
     ) -> Decision:
         """One MPC step. ``prior (P,)`` is the previous ``f`` (optional; ``f <= prior``);
         ``reject`` (optional) drops first actions (e.g. ones the robot refused before).
 
-        Sampled actions the robot cannot execute are dropped (:meth:`feasible`)."""
+        Sampled actions the robot cannot execute are dropped (:meth:`feasible`).
+
+        ``grasp_check`` (optional, used once the target is visible at ``x*``): ``g(x*)`` counts
+        only the C.3 candidates the robot can execute. The afterimage of the gripper and links
+        6-7 (C.3) misses the rest of the arm and the IK: the check with ``objects=True`` filters
+        the candidates for the current scene (and so decides whether to grasp now), the one
+        with ``objects=False`` those of the predicted scenes (the arm-shelf part does not move).
+        When no candidate passes even without objects, no rearrangement can make the target
+        graspable and the decision is ``none``."""
         if target_visible and target_pose is None:
             raise ValidationError("target_pose is required when target_visible is true")
         rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
@@ -145,8 +136,28 @@ class SearchPlanner:
         times["setup"] = (time.perf_counter() - t0) * 1e3
         scene = SceneState.from_objects(objects)
         prior_t = None if prior is None else torch.as_tensor(np.asarray(prior)).bool()
+        allowed_now = allowed_later = None
+        if target_visible and grasp_check is not None:
+            t = time.perf_counter()
+            i = grid.nearest(target_pose)
+            poses, valid = self.target_grasps(ev, i, target_pose)
+            ok_arm = valid.copy()
+            if valid.any():
+                ok_arm[valid] = np.asarray(grasp_check(poses[valid], False), dtype=bool)
+            ok_now = ok_arm.copy()
+            if ok_arm.any():
+                ok_now[ok_arm] = np.asarray(grasp_check(poses[ok_arm], True), dtype=bool)
+            allowed_now = (i, torch.from_numpy(ok_now))
+            allowed_later = (i, torch.from_numpy(ok_arm))
+            times["grasp_check"] = (time.perf_counter() - t) * 1e3
         t = time.perf_counter()
-        root = ev.maps(scene, visible=target_visible, target_pose=target_pose, prior=prior_t)
+        root = ev.maps(
+            scene,
+            visible=target_visible,
+            target_pose=target_pose,
+            prior=prior_t,
+            allowed=allowed_now,
+        )
         times["f_g"] = (time.perf_counter() - t) * 1e3
         shape = grid.shape
         f_map = root.f.reshape(shape).numpy()
@@ -157,15 +168,30 @@ class SearchPlanner:
             if root.g[i] >= 1 and root.best_grasp[i] >= 0:
                 T, _ = ev.gm.grasp_poses(torch.tensor([i]))
                 pose = T[0, int(root.best_grasp[i])].double().numpy()
+                params: dict[str, Any] = {"grasp_pose": pose, "grid_index": i}
+                if allowed_now is not None:
+                    params["executable"] = allowed_now[1].nonzero().squeeze(-1).tolist()
                 times["total"] = (time.perf_counter() - t0) * 1e3
                 return Decision(
                     "grasp",
-                    {"grasp_pose": pose, "grid_index": i},
+                    params,
                     f_map,
                     fg_map,
                     root.J,
                     times,
                     reason="target visible and graspable",
+                )
+            if allowed_later is not None and not bool(allowed_later[1].any()):
+                times["total"] = (time.perf_counter() - t0) * 1e3
+                return Decision(
+                    "none",
+                    {},
+                    f_map,
+                    fg_map,
+                    root.J,
+                    times,
+                    reason="target visible, but the arm can execute none of its grasps in the "
+                    "shelf (IK or arm-shelf collision), whatever the objects",
                 )
 
         t = time.perf_counter()
@@ -176,16 +202,24 @@ class SearchPlanner:
             ],
             -1,
         )
-        cands = sampler.candidates(scene, keep_out)
-        first = sampler.sample(scene, rng, cfg.n_sequences, keep_out, cands)
-        first = [a for a in first if self.feasible(a, shelf) and (reject is None or not reject(a))]
+        first: list[Action] = []
+        for push_keep_out in (True, False):
+            # pushes that would sweep where the target may stand come last: only when nothing
+            # else is left (the target there would be shoved along, see push_distances)
+            cands = sampler.candidates(scene, keep_out, push_keep_out)
+            first = sampler.sample(scene, rng, cfg.n_sequences, keep_out, cands)
+            first = [
+                a for a in first if self.feasible(a, shelf) and (reject is None or not reject(a))
+            ]
+            if first or not keep_out.numel():
+                break
         times["sample"] = (time.perf_counter() - t) * 1e3
         if not first:
             times["total"] = (time.perf_counter() - t0) * 1e3
             return Decision("none", {}, f_map, fg_map, root.J, times, reason="no valid action")
         t = time.perf_counter()
         costs = self._rollouts(
-            scene, root, first, ev, sampler, shelf, target_visible, target_pose, rng
+            scene, root, first, ev, sampler, shelf, target_visible, target_pose, rng, allowed_later
         )
         times["rollout"] = (time.perf_counter() - t) * 1e3
         best = int(np.argmin(costs))
@@ -202,7 +236,21 @@ class SearchPlanner:
             reason=f"best of {len(first)} sequences",
         )
 
-    def _rollouts(self, scene, root: Maps, first, ev, sampler, shelf, visible, target_pose, rng):
+    def target_grasps(
+        self, ev: FGEvaluator, i: int, target_pose: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """World poses ``(K, 4, 4)`` of the C.3 candidates of grid pose ``i`` moved onto the
+        observed ``target_pose`` (the grid pose is its nearest, within half a cell), and their
+        validity ``(K,)`` (float64 numpy)."""
+        T, valid = ev.gm.grasp_poses(torch.tensor([i]))
+        poses = T[0].double().numpy().copy()
+        shift = np.asarray(target_pose, np.float64)[:2, 3] - ev.em.grid.xy[i].double().numpy()
+        poses[:, :2, 3] += shift
+        return poses, valid[0].numpy().copy()
+
+    def _rollouts(
+        self, scene, root: Maps, first, ev, sampler, shelf, visible, target_pose, rng, allowed=None
+    ):
         cfg = self.config
         grid = ev.em.grid
         costs = np.zeros(len(first))
@@ -213,7 +261,9 @@ class SearchPlanner:
             f_prev = root.f
             state = s1
             for step in range(cfg.horizon):
-                m = ev.maps(state, visible=visible, target_pose=target_pose, prior=f_prev)
+                m = ev.maps(
+                    state, visible=visible, target_pose=target_pose, prior=f_prev, allowed=allowed
+                )
                 J.append(m.J)
                 f_prev = m.f
                 if step + 1 == cfg.horizon:
@@ -272,12 +322,15 @@ class SearchPlanner:
                 p = sampler.push_poses(state, i)
                 if p:
                     direction, T, tcp = p[int(rng.integers(len(p)))]
-                    d = float(cfg.push_distances[int(rng.integers(len(cfg.push_distances)))])
+                    ds = sampler.push_distances(state, i, direction, keep_out)
+                    if not ds:
+                        continue
+                    d = ds[int(rng.integers(len(ds)))]
                     a = Push("push", i, direction, d, T, tcp, np.array([0.0, direction * d, 0.0]))
                     if self.feasible(a, self._shelf):
                         return a
             else:
-                gr = self._grasp_cache[id(sampler)].grasps(state, i)
+                gr = sampler.grasps(state, i)
                 if gr.shape[0]:
                     spots = sampler.place_spots(state, i, gr[0], keep_out)
                     if spots.shape[0]:

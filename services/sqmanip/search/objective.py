@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from .config import SearchConfig
-from .existence import ExistenceModel
+from .existence import ExistenceModel, depth_condition
 from .graspability import GraspabilityModel
 from .shelf import Obstacles, SceneState
 
@@ -88,7 +88,15 @@ class FGEvaluator:
             out &= ~e.fc_hit
         return out
 
-    def graspability(self, scene: SceneState, mask: torch.Tensor):
+    def graspability(
+        self,
+        scene: SceneState,
+        mask: torch.Tensor,
+        allowed: tuple[int, torch.Tensor] | None = None,
+    ):
+        """``(g, g_m, best)`` on ``mask`` as :meth:`GraspabilityModel.evaluate`; ``allowed =
+        (i, ok (K,))`` keeps only the candidates ``ok`` at grid pose ``i`` (those the robot can
+        execute there, :meth:`SearchPlanner.decide`'s ``grasp_check``)."""
         gm = self.grasp
         P, K = self.P, gm.n_candidates
         n_obs = len(scene) + 5
@@ -105,6 +113,11 @@ class FGEvaluator:
                 e.g_done[:] = True
             n += e.g_hit[idx].long()
         valid = gm.local_valid[gm._theta_index[idx]]
+        if allowed is not None:
+            row = (idx == allowed[0]).nonzero().squeeze(-1)
+            if row.numel():
+                valid = valid.clone()
+                valid[row] &= allowed[1].to(valid.device)
         n = torch.where(valid, n, torch.full_like(n, n_obs))
         n_min, k = n.min(-1)
         g_m[idx] = (1 - n_min).to(gm.dtype)
@@ -130,9 +143,14 @@ class FGEvaluator:
             if e.depth is None:
                 e.depth = ex.object_depth(_single_scene(scene, i), self._pixels)
             d0 = torch.minimum(d0, e.depth)
-        sq = (d0[self._foot_pixel[keep]] - fp.depth[keep]).clamp_min(0) ** 2
-        sse = torch.zeros(self.P, dtype=ex.dtype).index_add_(0, fp.pose[keep], sq)
-        out = (sse / ex.n_pixels) < ex.config.mse_threshold
+        out = depth_condition(
+            fp.pose[keep],
+            d0[self._foot_pixel[keep]],
+            fp.depth[keep],
+            ex.n_foot,
+            ex.config,
+            ex.pixel_area,
+        )
         return out & mask
 
     def existence(self, scene, *, visible=False, target_pose=None, mask=None) -> torch.Tensor:
@@ -150,13 +168,15 @@ class FGEvaluator:
         visible: bool = False,
         target_pose=None,
         prior: torch.Tensor | None = None,
+        allowed: tuple[int, torch.Tensor] | None = None,
     ) -> Maps:
-        """``f_{t+1} = prior * f(s)`` (5.4.5) and ``g(s)`` where ``f_{t+1} = 1``, with ``J``."""
+        """``f_{t+1} = prior * f(s)`` (5.4.5) and ``g(s)`` where ``f_{t+1} = 1``, with ``J``
+        (``allowed``: see :meth:`graspability`)."""
         mask = None if prior is None else prior.bool()
         f = self.existence(scene, visible=visible, target_pose=target_pose, mask=mask)
         need_g = self.config.method == "search_for_grasp" or visible
         if need_g:
-            g, g_m, best = self.graspability(scene, f.bool())
+            g, g_m, best = self.graspability(scene, f.bool(), allowed)
         else:
             P = self.P
             g = torch.zeros(P, dtype=f.dtype)

@@ -11,7 +11,10 @@ and a red cylinder target placed where the fixed shelf camera (1280 x 720) canno
    C.2) and where at least one C.3 grasp is free of the shelf boards ("the target object is not
    graspable because of the collision of the gripper with the shelf": discarded). Candidates
    are tried in random order; the first one with fewer than ``found_pixels = 100`` target
-   pixels in the simulator's segmentation image is kept;
+   pixels in the simulator's segmentation image, and (with an in-process simulator) at least
+   one candidate grasp the robot can execute there with the shelf alone
+   (:class:`.execution.SimGraspCheck` with ``objects=False``: the IK and the whole arm against
+   the shelf, not only the gripper's afterimage), is kept;
 3. when no candidate is left the scenario is discarded (``make_scenario`` returns ``None`` and
    :func:`scenarios` draws the next seed).
 
@@ -33,7 +36,9 @@ from sqmanip.errors import ValidationError
 from sqmanip.geometry import PinholeCamera
 from sqmanip.sim import Intrinsics, ObjectSpec, SceneSpec, Simulator
 
+from .actions import GraspSource
 from .config import SearchConfig
+from .execution import SimGraspCheck
 from .existence import ExistenceModel
 from .graspability import GraspabilityModel
 from .shelf import SceneState, ShelfSpec, TargetSpec, make_pose_grid
@@ -164,7 +169,10 @@ class ScenarioBuilder:
         sim: Simulator | None = None,
         config: SearchConfig | None = None,
         target: TargetSpec | None = None,
+        grasp_planner=None,
     ) -> None:
+        """``grasp_planner``: source of the target's C.3 candidates (see
+        :class:`.actions.GraspSource`; ``None`` in-process)."""
         self.sim = sim or Simulator()
         self.config = config or SearchConfig()
         self.target = target or TargetSpec.cylinder(TARGET_RADIUS, TARGET_HEIGHT)
@@ -174,10 +182,31 @@ class ScenarioBuilder:
         self.existence = ExistenceModel(
             self.shelf, self.target, self.grid, self.camera, self.config
         )
-        self.grasp = GraspabilityModel(self.shelf, self.target, self.grid, self.config)
+        self.grasp = GraspabilityModel(
+            self.shelf, self.target, self.grid, self.config, grasp_source=GraspSource(grasp_planner)
+        )
         valid = self.grasp.local_valid[self.grasp._theta_index]
         n = torch.where(valid, self.grasp.n_shelf, torch.full_like(self.grasp.n_shelf, 99))
         self.shelf_graspable = (n.min(-1).values == 0) if n.shape[1] else valid.any(-1)
+        self.grasp_check = SimGraspCheck(self.sim) if isinstance(self.sim, Simulator) else None
+
+    def arm_graspable(self, i: int) -> bool:
+        """Some C.3 candidate at grid pose ``i`` is free of the boards (afterimage) and executable
+        by the robot with the shelf alone (always True without an in-process simulator). The
+        simulator must hold a shelf scene (its boards are what the arm is checked against).
+        The same must hold 1 cm deeper into the shelf, where reach and the elbow's clearance
+        above the floor board run out (ours: a target nudged there became ungraspable)."""
+        if self.grasp_check is None:
+            return True
+        gm = self.grasp
+        T, valid = gm.grasp_poses(torch.tensor([int(i)]))
+        ok = valid[0] & (gm.n_shelf[int(i)] == 0)
+        if not bool(ok.any()):
+            return False
+        poses = T[0][ok].double().numpy()
+        deeper = poses.copy()
+        deeper[:, 0, 3] += 0.01  # a margin: a push may nudge the target deeper into the shelf
+        return bool(self.grasp_check(poses, False).any() and self.grasp_check(deeper, False).any())
 
     def hidden(self, scene: SceneState, margin: float = 0.005) -> torch.Tensor:
         """``(P,)`` bool: no pixel of the (render-scale) image sees the target at the pose.
@@ -194,7 +223,7 @@ class ScenarioBuilder:
         count = torch.zeros(len(self.grid), dtype=torch.long).index_add_(0, fp.pose, seen.long())
         return count == 0
 
-    def make(self, n_objects: int, seed: int, max_tries: int = 6) -> ShelfScenario | None:
+    def make(self, n_objects: int, seed: int, max_tries: int = 10) -> ShelfScenario | None:
         """The scenario of ``seed``, or ``None`` when the target cannot be placed (5.5.1)."""
         if not 0 <= n_objects <= 12:
             raise ValidationError(f"n_objects must be in 0..12, got {n_objects!r}")
@@ -221,8 +250,8 @@ class ScenarioBuilder:
                 name="target",
             )
             spec = SceneSpec("shelf", (*objects, tgt), int(seed))
-            self.sim.reset(spec)
-            if target_pixels(self.sim, len(objects)) < FOUND_PIXELS:
+            self.sim.reset(spec)  # the shelf layout: the arm check below needs its boards
+            if target_pixels(self.sim, len(objects)) < FOUND_PIXELS and self.arm_graspable(i):
                 return ShelfScenario(n_objects, int(seed), spec, self.target)
         return None
 

@@ -10,8 +10,11 @@
   service and, for ``shapes = "recognized"``, the Perception service; push dynamics are
   ``"kinematic"`` (in-process rigid slide, the default while no SQPD-Net checkpoint ships) or a
   model of the Dynamics service (SQPD-Net lowered to the shelf floor,
-  :class:`~sqmanip.search.actions.SQPDNetDynamics`). Grasp candidates and their afterimage
-  checks (C.3) run in-process. Before the episode each needed service must answer its health
+  :class:`~sqmanip.search.actions.SQPDNetDynamics`). The C.3 rule-based grasp candidates of
+  the target and of the objects come from the GraspPlanner service (``method = rule_based``,
+  the object alone, no reachability check; one call per object shape and orientation, reused by
+  translation, :class:`~sqmanip.search.actions.GraspSource`); the search's own afterimage checks
+  (C.3) stay in-process. Before the episode each needed service must answer its health
   check (concurrently) within ``SQMANIP_SEARCH_PROBE_TIMEOUT_S`` (2 s), else the call ends UNAVAILABLE naming
   it. Every remote call has a deadline (the smaller of ``call_timeout_s`` and the incoming
   call's remaining time); idempotent calls (observe, state, recognize, predict) are retried at
@@ -46,7 +49,12 @@ from sqmanip.planning.server import (
     stream_generator,
 )
 from sqmanip.rpc import convert
-from sqmanip.rpc.client import RemoteDynamics, RemoteRecognizer, RemoteSimulator
+from sqmanip.rpc.client import (
+    RemoteDynamics,
+    RemoteGraspPlanner,
+    RemoteRecognizer,
+    RemoteSimulator,
+)
 from sqmanip.rpc.server import configure_logging, run_service, service_parser
 from sqmanip.settings import StackSettings, get_settings
 from sqmanip.streams import Publisher
@@ -55,7 +63,7 @@ from sqmanip.v1 import search_pb2, search_pb2_grpc
 log = logging.getLogger("sqmanip.search.server")
 
 EPISODE_KEY = "sqmanip/search/episode"
-_IDEMPOTENT = frozenset({"observe", "get_state", "recognize", "predict"})
+_IDEMPOTENT = frozenset({"observe", "get_state", "recognize", "predict", "plan_grasps"})
 
 
 class SearchServiceSettings(BaseSettings):
@@ -180,6 +188,22 @@ class _Dynamics:
         )  # fmt: skip
 
 
+class _GraspPlanner:
+    """``plan`` through the GraspPlanner service with deadlines and retries, geometry only (the
+    search wants the candidates; the robot's feasibility is the simulator's to judge)."""
+
+    def __init__(self, remote: RemoteGraspPlanner, deadline: Deadline, retries, backoff):
+        self.remote, self.deadline = remote, deadline
+        self.retries, self.backoff = retries, backoff
+
+    def plan(self, target, obstacles=(), environment=None, gripper=None, options=None):
+        return call_with_retries(
+            lambda t: self.remote.plan(target, obstacles, environment, gripper, options,
+                                       check_reachability=False, timeout=t),
+            "plan_grasps", self.deadline, self.retries, self.backoff,
+        )  # fmt: skip
+
+
 class SearchServicer(search_pb2_grpc.SearchServicer):
     """``Evaluate`` and ``RunEpisode`` (see the module docstring)."""
 
@@ -258,6 +282,9 @@ class SearchServicer(search_pb2_grpc.SearchServicer):
             remote = RemoteSimulator(s.address("sim"), s)
             clients.append(remote)
             sim = ShelfSim(remote, dl, *retry)
+            rg = RemoteGraspPlanner(s.address("grasp"), s)
+            clients.append(rg)
+            grasps = _GraspPlanner(rg, dl, *retry)
             kw: dict[str, Any] = {"method": args.method, "actions": args.actions,
                                   "seed": args.plan_seed}  # fmt: skip
             if args.max_steps is not None:
@@ -271,7 +298,9 @@ class SearchServicer(search_pb2_grpc.SearchServicer):
                 except (KeyError, TypeError, ValueError) as exc:
                     raise ValidationError(f"scenario_json: {exc}") from None
             else:
-                scenario = ScenarioBuilder(sim, cfg).make(args.n_objects, args.seed)
+                scenario = ScenarioBuilder(sim, cfg, grasp_planner=grasps).make(
+                    args.n_objects, args.seed
+                )
                 if scenario is None:
                     raise PreconditionError(
                         f"seed: no valid scenario with {args.n_objects} objects for seed "
@@ -290,7 +319,7 @@ class SearchServicer(search_pb2_grpc.SearchServicer):
                 rr = RemoteRecognizer(s.address("perception"), s)
                 clients.append(rr)
                 recognizer = _Recognizer(rr, dl, *retry)
-            planner = SearchPlanner(dynamics, None, cfg)
+            planner = SearchPlanner(dynamics, None, cfg, grasp_planner=grasps)
             runner = EpisodeRunner(sim, planner, shapes=args.shapes, recognizer=recognizer,
                                    max_steps=args.max_steps)  # fmt: skip
             result = yield from runner.events(scenario, args.plan_seed)
@@ -321,7 +350,7 @@ class SearchServicer(search_pb2_grpc.SearchServicer):
             await context.abort(code, message)
         deadline = deadline_of(context)
         s = self.settings
-        deps = [("sim", s.address("sim"))]
+        deps = [("sim", s.address("sim")), ("grasp", s.address("grasp"))]
         if args.shapes == "recognized":
             deps.append(("perception", s.address("perception")))
         if args.dynamics_model != "kinematic":

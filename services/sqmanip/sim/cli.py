@@ -5,6 +5,7 @@ Examples (the service from ``sqmanip up``, or ``python -m sqmanip.sim.server``):
     sqmanip sim reset --seed 7 --n-objects 4 --save scene.json
     sqmanip sim reset --scene scene.json          # replay a saved scene
     sqmanip sim observe --width 320 --height 288 --out frame.npz
+    sqmanip sim observe --out frame.ply            # colored cloud for `sqmanip recognize`
 
 ``--address`` defaults to the stack's sim address (``SQMANIP_SIM_PORT``, ``SQMANIP_HOST``).
 The ``.npz`` holds depth, rgb, segmentation, points, point_labels, point_pixels, camera_pose and
@@ -50,7 +51,17 @@ def add_cli(subparsers) -> None:
     observe.add_argument("--width", type=int, default=None, help="image width (px; 640)")
     observe.add_argument("--height", type=int, default=None, help="image height (px; 576)")
     observe.add_argument("--no-noise", action="store_true", help="no point-cloud noise")
-    observe.add_argument("--out", type=Path, help="write the arrays to this .npz file")
+    observe.add_argument(
+        "--keep-robot",
+        action="store_true",
+        help=".ply/.npy: keep the robot's own points (dropped by default)",
+    )
+    observe.add_argument(
+        "--out",
+        type=Path,
+        help="write the arrays to this .npz file, or the colored cloud to a .ply / .npy file "
+        "(ready for `sqmanip recognize`)",
+    )
     _common(observe)
     observe.set_defaults(func=cmd_observe)
 
@@ -91,7 +102,7 @@ def cmd_reset(args) -> int:
             )
             spec = sim.scene_spec
     except (SQManipError, OSError, json.JSONDecodeError) as exc:
-        print(f"sqmanip sim reset: {exc}", file=sys.stderr)
+        print(f"error: sim reset: {' '.join(str(exc).split())}", file=sys.stderr)
         return 1
     print(f"{state.scene_kind} scene, {len(state.objects)} objects (seed {spec.seed}):")
     _print_objects(state.objects)
@@ -109,9 +120,23 @@ def cmd_observe(args) -> int:
         if args.width is not None or args.height is not None:
             base = Intrinsics()
             k = Intrinsics.scaled(args.width or base.width, args.height or base.height)
+        suffix = "" if args.out is None else args.out.suffix.lower()
+        if args.out is not None and suffix not in (".npz", ".ply", ".npy"):
+            raise SQManipError(f"--out {args.out}: expected a .npz, .ply or .npy file name")
         with _remote(args) as sim:
             obs = sim.observe(args.camera, intrinsics=k, noise=not args.no_noise)
-        if args.out is not None:
+        if suffix in (".ply", ".npy"):
+            from sqmanip.io.clouds import write_cloud
+            from sqmanip.sim.config import LABEL_ROBOT
+
+            rgb = np.asarray(obs.rgb).reshape(-1, 3)
+            colors = rgb[np.asarray(obs.point_pixels, dtype=np.int64)] / 255.0
+            keep = np.ones(len(obs.points), dtype=bool)
+            if not args.keep_robot:
+                keep = np.asarray(obs.point_labels) != LABEL_ROBOT
+            viewpoint = np.asarray(obs.camera_pose)[:3, 3]
+            write_cloud(args.out, obs.points[keep], colors[keep], viewpoint)
+        elif args.out is not None:
             np.savez(
                 args.out,
                 depth=obs.depth,
@@ -124,7 +149,7 @@ def cmd_observe(args) -> int:
                 camera_matrix=obs.intrinsics.matrix(),
             )
     except (SQManipError, OSError) as exc:
-        print(f"sqmanip sim observe: {exc}", file=sys.stderr)
+        print(f"error: sim observe: {' '.join(str(exc).split())}", file=sys.stderr)
         return 1
     h, w = obs.depth.shape
     labels, counts = np.unique(obs.point_labels, return_counts=True)
@@ -133,5 +158,6 @@ def cmd_observe(args) -> int:
     print(f"{obs.points.shape[0]} points (per label {{{per_label}}})")
     _print_objects(obs.objects)
     if args.out is not None:
-        print(f"arrays written to {args.out}")
+        what = "arrays" if args.out.suffix.lower() == ".npz" else "point cloud"
+        print(f"{what} written to {args.out}")
     return 0

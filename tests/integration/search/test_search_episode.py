@@ -97,3 +97,32 @@ def test_episode_without_solution_ends_with_a_reason(sim):
     assert not result.found and not result.grasped
     assert result.reason.startswith("no solution")
     assert result.steps == 0 and len(result.events) == 1
+
+
+def test_grasp_check_agrees_with_the_simulator(sim):
+    """SimGraspCheck asks the simulator's own IK and collision queries without moving: every
+    candidate it rejects with the shelf alone is refused by ``Simulator.grasp`` as well, and
+    the first one it accepts (with the objects) is executed and lifts the target."""
+    from sqmanip.errors import PreconditionError
+    from sqmanip.grasping.reachability import sim_tool_pose
+    from sqmanip.search.execution import SimGraspCheck
+
+    scenario = scenario_from_objects([], (0.74, -0.2))
+    sim.reset(scenario.scene)
+    planner = SearchPlanner(KinematicPushDynamics(), None, SearchConfig())
+    runner = EpisodeRunner(sim, planner)
+    _, ev, _ = planner.models(runner.shelf, scenario.target, runner.camera)
+    pose = sim.get_state().objects[scenario.target_index].pose
+    poses, valid = planner.target_grasps(ev, ev.em.grid.nearest(pose), pose)
+    poses = poses[valid]
+    check = SimGraspCheck(sim)
+    arm = check(poses, False)
+    now = check(poses, True)
+    assert arm.any() and (~arm).any()  # the shelf blocks some candidates, not all
+    assert not (now & ~arm).any()
+    for p in poses[~arm][:3]:
+        with pytest.raises(PreconditionError):
+            sim.grasp(sim_tool_pose(p), 0.08)
+    r = sim.grasp(sim_tool_pose(poses[np.flatnonzero(now)[0]]), 0.08)
+    assert r.success and sim.get_state().held_object == scenario.target_index
+    sim.release()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 import torch
 from dynamics_helpers import random_actions, random_scene
@@ -152,3 +153,25 @@ def test_predict_validates_shapes_and_object_count():
     with pytest.raises(ValueError, match="more than max_objects=4"):
         model.predict(big, bigp, actions, bigk)
     assert model.predict(poses, params, actions[:0], kinds).shape == (0, 2, 4, 4)
+
+
+def test_alignment_is_stable_for_diagonal_pushes_under_float32_transforms():
+    """The 4.5 sampler pushes along object diagonals, where the two candidate x axes of the
+    shape alignment tie; rounding of a transformed float32 input must not flip the choice
+    (it did before the tie tolerance: a 10 cm flow error in the 4.6.1 study)."""
+    from sqmanip.geometry.transforms import se2_matrix
+
+    rng = np.random.default_rng(3)
+    yaw = 0.37
+    pose = torch.eye(4)
+    pose[:2, :2] = torch.tensor([[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]])
+    pose[:3, 3] = torch.tensor([0.5, 0.05, 0.03])
+    params = torch.tensor([[0.03, 0.025, 0.03, 0.2, 0.2, 0, 0, 0, 0]])
+    kinds = torch.zeros(1, dtype=torch.long)
+    diag = torch.tensor([1.0, 1.0, 0.0]) / math.sqrt(2.0)
+    v = 0.1 * (pose[:3, :3] @ diag)
+    _, ref_params, _ = align_objects(pose[None], params, kinds, v)
+    for _ in range(30):
+        C = se2_matrix(*rng.uniform(-math.pi, math.pi, 1), *rng.uniform(-0.2, 0.2, 2)).float()
+        _, p2, _ = align_objects((C @ pose)[None], params, kinds, C[:3, :3] @ v)
+        torch.testing.assert_close(p2, ref_params)

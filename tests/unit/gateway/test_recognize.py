@@ -144,12 +144,6 @@ BAD = [
         400,
         "ply",
     ),
-    (
-        "network method",
-        dict(content=b"\0" * 36, headers=BIN, params={"method": "network"}),
-        501,
-        "network",
-    ),
 ]
 
 

@@ -148,3 +148,33 @@ def test_culled_check_equals_dense_world_implicit(xs, yaw, tilt):
     mins = res.min_value.amin(-1).numpy()
     hit = dense < 1.0
     assert np.allclose(mins[hit], dense[hit], rtol=1e-9)
+
+
+def test_margin_inflates_every_gripper_box():
+    plain = gripper_boxes(PANDA_HAND)
+    padded = gripper_boxes(PANDA_HAND, margin=0.003)
+    for k, ((lo, hi), (plo, phi)) in enumerate(zip(plain, padded, strict=True)):
+        grow_lo, grow_hi = np.full(3, 0.003), np.full(3, 0.003)
+        if k == 0:  # left finger: its pad (inner face, lowest y) stays at +opening / 2
+            grow_lo[1] = 0.0
+        if k == 1:  # right finger: its pad (highest y) stays at -opening / 2
+            grow_hi[1] = 0.0
+        assert np.allclose(plo, lo - grow_lo) and np.allclose(phi, hi + grow_hi)
+    with pytest.raises(ValidationError, match="margin"):
+        gripper_boxes(PANDA_HAND, margin=-0.001)
+
+
+def test_open_gripper_points_move_only_the_fingers_to_the_execution_opening():
+    from sqmanip.grasping.gripper import gripper_points_and_sides, open_gripper_points
+
+    pts, sides = gripper_points_and_sides(PANDA_HAND, 512)
+    assert set(np.unique(sides).tolist()) == {-1, 0, 1}
+    T = torch.as_tensor(np.stack([top_down(0.5, 0.1, 0.2, 0.3), top_down(0.4, 0.0, 0.1)]))
+    world = open_gripper_points(T, pts, sides, torch.tensor([0.08, 0.03]), PANDA_HAND.max_opening)
+    # at the built opening nothing moves; at 3 cm each finger moves 2.5 cm inwards
+    assert torch.allclose(world[0], transform_gripper_points(T[:1], pts)[0], atol=1e-12)
+    local = (world[1] - T[1, :3, 3]) @ T[1, :3, :3]  # back to the gripper frame
+    fingers = local[torch.as_tensor(sides != 0)]
+    assert torch.isclose(fingers[:, 1].abs().min(), torch.tensor(0.015, dtype=local.dtype))
+    palm = torch.as_tensor(sides == 0)
+    assert torch.allclose(local[palm], torch.as_tensor(pts[sides == 0]), atol=1e-12)

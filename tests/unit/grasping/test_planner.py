@@ -202,3 +202,33 @@ def test_check_poses_reports_reachability_and_collisions():
     assert f.feasible.tolist() == [True, False, False]
     assert f.reachable.tolist() == [True, True, False]
     assert f.collision.collides.tolist()[:2] == [False, True]
+
+
+def test_widths_within_the_clearance_of_the_full_opening_are_dropped():
+    # 7.8 x 12 x 10 cm box: its narrow side fits the 8 cm stroke only without clearance
+    target = box((0.039, 0.06, 0.05), pose(0.5, 0.0, 0.05))
+    planner = GraspPlanner(always_reachable)
+    tight = PlanOptions(n_samples=160, max_results=5, seed=0, opening_clearance=0.004)
+    assert planner.plan([target], environment=TABLE, options=tight) == []  # 4 mm clearance
+    loose = PlanOptions(n_samples=160, max_results=5, seed=0)  # default: no clearance
+    grasps = planner.plan([target], environment=TABLE, options=loose)
+    assert grasps and all(0.077 <= g.width <= 0.08 for g in grasps)
+    assert tight.opening(0.03, 0.08) == pytest.approx(0.05)  # width + open_margin
+    assert tight.opening(0.075, 0.08) == pytest.approx(0.08)  # capped at the stroke
+
+
+def test_collision_check_holds_the_fingers_at_the_execution_opening():
+    # a 2 cm wide post and a neighbour 4-6 cm off its axis along world y: fully open (8 cm)
+    # fingers would reach into the neighbour, but the hand opens only to 2 + 2 = 4 cm, so
+    # grasps closing along y are feasible (fingers at +-2 cm, their backs clear of it)
+    post = box((0.01, 0.01, 0.04), pose(0.5, 0.0, 0.04))
+    wall = box((0.03, 0.01, 0.04), pose(0.5, 0.05, 0.04))
+    planner = GraspPlanner(always_reachable)
+    opts = PlanOptions(n_samples=200, max_results=None, seed=0)
+    grasps = planner.plan([post], [[wall]], TABLE, options=opts)
+    along_y = [g for g in grasps if abs(g.pose[:3, 1] @ np.array([0.0, 1.0, 0.0])) > 0.99]
+    assert along_y and all(g.width < 0.025 for g in along_y)
+    # executed fully open (open_margin 8 cm) the fingers would hit the neighbour: rejected
+    full = PlanOptions(n_samples=200, max_results=None, seed=0, open_margin=0.08)
+    wide = planner.plan([post], [[wall]], TABLE, options=full)
+    assert not [g for g in wide if abs(g.pose[:3, 1] @ np.array([0.0, 1.0, 0.0])) > 0.99]

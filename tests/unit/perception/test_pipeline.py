@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from sqmanip.errors import UnimplementedError, ValidationError
+from sqmanip.errors import PreconditionError, ValidationError
 from sqmanip.geometry import volume_iou
 from sqmanip.perception.pipeline import Recognizer
 from sqmanip.perception.synthetic import make_tabletop_scene
@@ -64,10 +64,15 @@ def test_labels_colors_and_workspace_crop_map_back_to_the_request(scene):
         assert obj.parts[0].shape == (0.2, 0.2)
 
 
-def test_network_methods_are_reported_unimplemented_and_bad_input_rejected(scene):
+def test_network_methods_without_a_checkpoint_fail_clearly_and_bad_input_is_rejected(
+    scene, tmp_path
+):
+    from sqmanip.perception.config import PerceptionSettings
+
+    settings = PerceptionSettings(network_model_dir=tmp_path / "missing_model")
     for method in ("network", "hybrid"):
-        with pytest.raises(UnimplementedError, match="network"):
-            Recognizer().recognize(
+        with pytest.raises(PreconditionError, match="missing_model"):
+            Recognizer(settings).recognize(
                 RecognizeRequest(scene.points, options=RecognizeOptions(method=method))
             )
     with pytest.raises(ValidationError, match="points"):

@@ -55,6 +55,23 @@ def test_f_is_one_behind_a_box_and_zero_in_seen_space_and_inside(models):
     assert empty.sum() == 0  # nothing hides the target anywhere
 
 
+def test_f_rejects_a_target_that_would_be_partly_seen(models):
+    """f_d compares depth on the target's own pixels (C.2 MSE over the footprint, plus the
+    5.5.1 found-pixels criterion): the top of a target peeking over a 15 cm box would have
+    been seen (about 1,000 camera pixels), though the MSE over the whole image is below the
+    0.001 threshold (the reason the test is on the target's pixels); a 17 cm box hides it."""
+    grid, em, _ = models
+    i = idx_near(grid, 0.78, 0.0)
+    low = SceneState.from_objects([box(0.60, 0.0, 0.08, 0.40, 0.15)])
+    high = SceneState.from_objects([box(0.60, 0.0, 0.08, 0.40, 0.17)])
+    assert em.evaluate(low)[i] == 0 and em.evaluate(high)[i] == 1
+    fp = em._foot
+    sel = fp.pose == i
+    e = (em.object_depth(low, fp.pixel[sel]) - fp.depth[sel]).clamp_min(0)
+    assert float((e * e).sum()) / em.n_pixels < em.config.mse_threshold  # whole-image MSE
+    assert int((e > em.config.seen_margin).sum()) * em.pixel_area > 500
+
+
 def test_visible_target_gives_one_hot_f(models):
     grid, em, _ = models
     scene = SceneState.from_objects([box(0.60, 0.0, 0.08, 0.26, 0.25)])
@@ -104,3 +121,19 @@ def test_decision_on_toy_scene_reduces_objective():
     assert d.f_map.sum() > 0 and d.f_map.shape == d.fg_map.shape
     assert d.objective < 0  # the chosen sequence lowers J (reveals part of the hidden area)
     assert set(d.timings_ms) >= {"f_g", "rollout", "total"}
+
+
+def test_pushes_stop_short_of_where_the_target_may_stand():
+    """A push may not sweep the object into a disc where f = 1 (the target there would be
+    shoved along): only the lengths that end before it remain; other directions, and discs
+    beside the swept strip, are unaffected."""
+    from sqmanip.search import ActionSampler
+
+    sampler = ActionSampler(SHELF, CFG)
+    scene = SceneState.from_objects([box(0.60, 0.0, 0.06, 0.06, 0.15)])
+    ahead = torch.tensor([[0.60, 0.12, 0.025]])  # first contact after 0.12 - 0.03 - 0.025 m
+    assert sampler.push_distances(scene, 0, 1, ahead) == [0.05]
+    assert sampler.push_distances(scene, 0, -1, ahead) == [0.05, 0.10, 0.15]
+    beside = torch.tensor([[0.70, 0.10, 0.025]])  # behind the strip the box sweeps
+    assert sampler.push_distances(scene, 0, 1, beside) == [0.05, 0.10, 0.15]
+    assert sampler.push_distances(scene, 0, 1, None) == [0.05, 0.10, 0.15]

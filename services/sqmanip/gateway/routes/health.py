@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import asyncio
+import html
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Request
 from fastapi.responses import HTMLResponse
 
 from sqmanip.rpc.health_probe import check_async
@@ -23,6 +24,8 @@ _INDEX = """<!doctype html>
 <li><a href="/docs">API documentation (OpenAPI / Swagger UI)</a></li>
 <li><a href="/openapi.json">OpenAPI schema</a></li>
 <li><a href="/healthz">Health of the backends</a></li>
+<li><a href="{viewer}">3D viewer</a> (live scenes, grasps, pushes and shelf search; started by
+<code>sqmanip up</code>)</li>
 </ul>
 </body></html>
 """
@@ -46,5 +49,9 @@ async def healthz(settings: SettingsDep) -> HealthOut:
 
 
 @router.get("/", response_class=HTMLResponse, include_in_schema=False)
-async def index() -> str:
-    return _INDEX
+async def index(request: Request, settings: SettingsDep) -> str:
+    """Landing page: links to the docs, the health and the viewer (same host, viewer port)."""
+    host = request.url.hostname or settings.gateway_host
+    host = f"[{host}]" if ":" in host else host
+    viewer = f"http://{host}:{settings.viewer_port}/"
+    return _INDEX.replace("{viewer}", html.escape(viewer, quote=True))

@@ -128,11 +128,11 @@ async def recognize(
     settings: SettingsDep,
     method: Literal["optimization", "network", "hybrid", "mvbb"] = "optimization",
     segmentation: Literal["clustering", "labels", "network"] | None = None,
-    points_per_segment: int = Query(300, ge=1),
+    points_per_segment: int = Query(300, ge=1, le=2**32 - 1),
     remove_support: bool = True,
     amodal: bool = True,
     deformable: bool = True,
-    seed: int = 0,
+    seed: int = Query(0, ge=-(2**63), le=2**63 - 1),
     viewpoint: str | None = Query(None, description="x,y,z sensor origin (binary/PLY bodies)"),
     workspace: str | None = Query(None, description="x0,y0,z0,x1,y1,z1 crop box (binary/PLY)"),
 ) -> RecognizeResponse:

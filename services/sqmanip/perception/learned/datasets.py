@@ -784,6 +784,9 @@ def add_cli(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--shapes", type=int, default=None, help="shapes per type (overrides --scale)")
     p.add_argument("--datasets", nargs="+", default=list(DATASETS), choices=DATASETS)
     p.set_defaults(func=_run_cli)
+    from .scenes import add_cli as add_scenes_cli  # C.1 scenes: ``sqmanip data scenes``
+
+    add_scenes_cli(subparsers)
     return p
 
 
