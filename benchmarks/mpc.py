@@ -16,7 +16,7 @@ reduced run affordable; the thesis' K = 100 is the default. Episodes run in work
 
 Full run (Table 4.6 sizes)::
 
-    python -m benchmarks.mpc --model models/sqpd --workers 2
+    python -m benchmarks.mpc --model models/sqpdnet --workers 2
 
 Writes ``benchmarks/results/mpc.json`` and one PNG strip per task
 (``benchmarks/results/mpc_<task>.png``, the first episode of the first method run).
@@ -117,14 +117,13 @@ def _runner(method: str, model_dir: str | None, k_seq: int, max_steps: int, reac
 def run_one(job: dict) -> dict:
     """Run one episode (in a worker); returns a JSON-able record."""
     _init_worker()
+    from sqmanip.planning.episode import render_strip, run_episode
     from sqmanip.planning.scenarios import make_scenario
 
     t0 = time.perf_counter()
-    sc = make_scenario(job["task"], job["index"], job["seed"])
-    runner = _runner(job["method"], job["model"], job["k"], job["max_steps"], job["reach"])
-    from sqmanip.planning.episode import render_strip, run_episode
-
     try:
+        sc = make_scenario(job["task"], job["index"], job["seed"])
+        runner = _runner(job["method"], job["model"], job["k"], job["max_steps"], job["reach"])
         res = run_episode(runner, sc)
     except Exception as exc:  # one broken episode must not sink the whole table
         return {
@@ -204,7 +203,7 @@ def main(argv: list[str] | None = None) -> int:
         "workspace-radius stand-in (fast, optimistic)",
     )
     ap.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
-    ap.add_argument("--model", default="models/sqpd", help="SQPD-Net checkpoint dir")
+    ap.add_argument("--model", default="models/sqpdnet", help="SQPD-Net checkpoint dir")
     ap.add_argument("--sequences", type=int, default=100, help="K for R-SQPD-Net (B.4: 100)")
     ap.add_argument(
         "--physics-sequences", type=int, default=100, help="K for the PyBullet rows (B.4: 100)"
@@ -243,6 +242,12 @@ def main(argv: list[str] | None = None) -> int:
     counts = {
         t: (args.episodes if args.episodes is not None else FULL_COUNTS[t]) for t in args.tasks
     }
+    for item in (args.counts or "").split(","):
+        if item:
+            task, _, n = item.partition("=")
+            if task not in counts or not n.isdigit():
+                ap.error(f"--counts: expected TASK=N with TASK in {args.tasks}, got {item!r}")
+            counts[task] = int(n)
     print(
         f"episodes per task: {counts}; K: R-SQPD-Net {args.sequences}, PyBullet "
         f"{args.physics_sequences}; max steps {args.max_steps}; workers {args.workers}; "

@@ -339,21 +339,25 @@ def make_scenario(kind: str, index: int, seed: int = 0) -> Scenario:
     scene_seed = int(ss.generate_state(1)[0])
     for attempt in range(50):
         rng = np.random.default_rng(np.random.SeedSequence([int(seed), k, index, attempt]))
-        if kind == "moving":
-            specs, task, set_name = _moving(rng, index)
-        elif kind == "singulation":
-            specs, task, set_name = _singulation(rng, index)
+        try:
+            if kind == "moving":
+                specs, task, set_name = _moving(rng, index)
+            elif kind == "singulation":
+                specs, task, set_name = _singulation(rng, index)
+            elif kind == "grasping_clutter":
+                specs, task, set_name = _clutter(rng)
+            elif kind == "grasping_large":
+                specs, task, set_name = _large(rng)
+            else:
+                specs, task, set_name = _interactive(rng)
+        except ValidationError:
+            continue  # an object found no free spot: draw the next attempt
+        if kind == "singulation":
             xy = np.array([o.position[:2] for o in specs])
             if _min_pair_distance(xy) > 0.20:
                 continue  # already singulated
-        elif kind == "grasping_clutter":
-            specs, task, set_name = _clutter(rng)
-            if len(specs) < 4 or _graspable_now(specs, 0):
-                continue
-        elif kind == "grasping_large":
-            specs, task, set_name = _large(rng)
-        else:
-            specs, task, set_name = _interactive(rng)
+        elif kind == "grasping_clutter" and (len(specs) < 4 or _graspable_now(specs, 0)):
+            continue
         return Scenario(kind, index, seed, SceneSpec("tabletop", specs, scene_seed), task, set_name)
     raise ValidationError(f"could not generate a {kind} scenario for index {index}, seed {seed}")
 
