@@ -33,8 +33,9 @@ GRIPPER_MAX_WIDTH = 0.08
 # Instance-segmentation labels for pixels that are not objects (objects are 0, 1, 2, ...).
 LABEL_BACKGROUND = -1
 LABEL_STATIC = -2
-"""Table, pedestal, shelf, floor."""
+"""Table, shelf, floor."""
 LABEL_ROBOT = -3
+"""The Panda and the pedestal it stands on."""
 
 # Panda joint velocity limits (rad/s) from the URDF; motions use a fraction of them.
 ARM_VELOCITY_LIMITS = np.array([2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61])

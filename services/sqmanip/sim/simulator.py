@@ -371,8 +371,8 @@ class Simulator:
         labels = np.full(seg_raw.shape, LABEL_BACKGROUND, np.int32)
         for i, b in enumerate(self._bodies):
             labels[seg_raw == b] = i
-        for b in self._static:
-            labels[seg_raw == b] = LABEL_STATIC
+        for b, name in self._static.items():  # the pedestal is the robot's mount: robot points
+            labels[seg_raw == b] = LABEL_ROBOT if name == "pedestal" else LABEL_STATIC
         labels[seg_raw == r.body] = LABEL_ROBOT
         depth[labels == LABEL_BACKGROUND] = np.inf
         pts, idx = backproject(depth, k, T_wc)
