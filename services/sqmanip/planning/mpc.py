@@ -437,6 +437,8 @@ class PushMPC:
         ties = ((cost <= best + 1e-12) & finite).nonzero().squeeze(-1)
         if H > 1 and best <= 0.0 and ties.numel() > 1:
             ties = self._earliest_success(scene, ctx, states, ties, timings)
+        elif isinstance(ctx.task, GraspingTask) and best >= 1.0 and ties.numel() > 1:
+            ties = self._closest_to_graspable(scene, ctx, states[:, H], ties)
         ties = ties.numpy()
         k = int(ties[rng.integers(0, ties.size)])
         timings["total"] = 1e3 * (time.perf_counter() - t_start)
@@ -503,6 +505,34 @@ class PushMPC:
             out = interactive_moving_cost(states, ctx.target, ctx.goal)
         timings["cost"] += 1e3 * (time.perf_counter() - t0)
         return out
+
+    def _closest_to_graspable(
+        self, scene: PackedScene, ctx: _TaskContext, final: torch.Tensor, ties: torch.Tensor
+    ) -> torch.Tensor:
+        """Among sequences of which none makes the target graspable (all cost 1), those that
+        leave it closest to graspable. A tie-break of ours, not the thesis': with the 0/1 cost of
+        B.5.13 and few admissible pushes, a random choice wanders instead of making progress.
+
+        A target wider than the opening in both footprint directions ("grasping large") can only
+        be grasped where it overhangs the table edge, so the ones leaving its centre nearest an
+        edge win; any other target is blocked by neighbours, so the ones leaving its centre
+        farthest from the nearest other object win. ``final`` is ``(S, N, 4, 4)``.
+        """
+        t = ctx.target
+        xy = final[ties, :, :2, 3]  # (T, N, 2)
+        a1, a2 = (float(v) for v in scene.params[t, :2])
+        if 2.0 * min(a1, a2) > self.config.gripper.max_opening:
+            table = self.config.table
+            lo = torch.as_tensor(table.lo, dtype=xy.dtype)
+            hi = torch.as_tensor(table.hi, dtype=xy.dtype)
+            score = torch.minimum(xy[:, t] - lo, hi - xy[:, t]).amin(-1)  # edge distance
+        elif xy.shape[1] > 1:
+            d = torch.linalg.vector_norm(xy - xy[:, t : t + 1], dim=-1)  # (T, N)
+            d[:, t] = math.inf
+            score = -d.amin(-1)  # minus the clearance
+        else:
+            return ties
+        return ties[score <= score.min() + 1e-3]
 
     def _earliest_success(
         self,

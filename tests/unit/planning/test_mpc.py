@@ -182,3 +182,37 @@ def test_plan_is_deterministic_given_the_seed():
     r1 = mpc.plan(objs, GraspingTask(0), np.random.default_rng(5))
     r2 = mpc.plan(objs, GraspingTask(0), np.random.default_rng(5))
     np.testing.assert_array_equal(r1.sequence, r2.sequence)
+
+
+def _final_states(scene, moves):
+    """``(S, N, 4, 4)``: the scene's poses with object ``i`` moved by ``moves[s][i]`` (x, y)."""
+    out = scene.poses.repeat(len(moves), 1, 1, 1).clone()
+    out[:, :, :2, 3] += torch.as_tensor(moves, dtype=out.dtype)
+    return out
+
+
+def test_without_any_grasp_a_large_target_ends_nearest_the_table_edge():
+    from sqmanip.planning.mpc import _TaskContext
+
+    mpc = PushMPC(PusherDynamics(), reachability=always_reachable)
+    scene = PackedScene.from_objects([([box(0.55, 0.0, (0.13, 0.34, 0.05))], 0)])
+    final = _final_states(scene, [[[0.0, 0.1]], [[0.0, -0.42]], [[0.1, 0.2]]])
+    ctx = _TaskContext.build(GraspingTask(0), scene)
+    chosen = mpc._closest_to_graspable(scene, ctx, final, torch.arange(3))
+    assert chosen.tolist() == [1]  # centre 8 cm from the y = -0.5 edge
+
+
+def test_without_any_grasp_a_small_target_ends_farthest_from_its_neighbours():
+    from sqmanip.planning.mpc import _TaskContext
+
+    mpc = PushMPC(PusherDynamics(), reachability=always_reachable)
+    objs = [([box(0.45, 0.0)], 0), ([box(0.45, 0.07)], 1), ([box(0.52, 0.0)], 2)]
+    scene = PackedScene.from_objects(objs)
+    moves = [
+        [[0, 0], [0, 0.02], [0, 0]],
+        [[0, 0], [0, 0.10], [0.10, 0]],
+        [[0, 0], [0, 0.1], [0, 0]],
+    ]
+    ctx = _TaskContext.build(GraspingTask(0), scene)
+    chosen = mpc._closest_to_graspable(scene, ctx, _final_states(scene, moves), torch.arange(3))
+    assert chosen.tolist() == [1]  # both neighbours moved away
