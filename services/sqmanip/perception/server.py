@@ -92,24 +92,17 @@ def main(argv: list[str] | None = None) -> int:
     servicer = PerceptionServicer(Recognizer(), workers=args.workers, max_queue=args.max_queue)
     from sqmanip import streams
 
-    publisher = streams.Publisher(streams.SCENE_KEY)
-    servicer.publisher = publisher  # drops messages until the router answers
-
-    def on_started(_running) -> None:
-        publisher.open(settings)  # after start-up: no fork follows
-
-    try:
-        return run_service(
-            servicer,
-            registrar(servicer),
-            settings,
-            name="perception",
-            host=args.host,
-            port=args.port,
-            on_started=on_started,
-        )
-    finally:
-        publisher.close()
+    # Drops messages until the router answers.
+    servicer.publisher = streams.Publisher(streams.SCENE_KEY)
+    return run_service(
+        servicer,
+        registrar(servicer),
+        settings,
+        name="perception",
+        host=args.host,
+        port=args.port,
+        publisher=servicer.publisher,
+    )
 
 
 if __name__ == "__main__":

@@ -378,9 +378,6 @@ def main(argv: list[str] | None = None) -> int:
     settings = get_settings()
     servicer = PlannerServicer(settings)
 
-    def started(_running) -> None:
-        servicer.publisher.open(settings)  # after start-up, never before a fork
-
     return run_service(
         servicer,
         registrar(servicer),
@@ -388,7 +385,7 @@ def main(argv: list[str] | None = None) -> int:
         name="mpc",
         host=args.host,
         port=args.port,
-        on_started=started,
+        publisher=servicer.publisher,
     )
 
 

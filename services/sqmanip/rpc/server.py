@@ -137,17 +137,22 @@ def run_service(
     name: str,
     host: str | None,
     port: int | None,
-    on_started: Callable[[RunningServer], None] | None = None,
+    publisher=None,
 ) -> int:
     """Serve ``name`` until SIGTERM/SIGINT, then ``servicer.close()`` (its worker threads);
-    ``port`` None takes the stack's port for ``name``."""
+    ``port`` None takes the stack's port for ``name``. ``publisher`` (a
+    :class:`sqmanip.streams.Publisher`) connects once the server is up, after any fork, and is
+    closed on the way out."""
     port = settings.port(name) if port is None else port
+    on_started = None if publisher is None else (lambda _running: publisher.open(settings))
     try:
         asyncio.run(
             serve(register, settings, name=name, host=host, port=port, on_started=on_started)
         )
     finally:
         servicer.close()
+        if publisher is not None:
+            publisher.close()
     return 0
 
 

@@ -392,9 +392,6 @@ def main(argv: list[str] | None = None) -> int:
     settings = get_settings()
     servicer = SearchServicer(settings)
 
-    def started(_running) -> None:
-        servicer.publisher.open(settings)
-
     return run_service(
         servicer,
         registrar(servicer),
@@ -402,7 +399,7 @@ def main(argv: list[str] | None = None) -> int:
         name="search",
         host=args.host,
         port=args.port,
-        on_started=started,
+        publisher=servicer.publisher,
     )
 
 

@@ -112,14 +112,8 @@ class SimulatorServicer(sim_pb2_grpc.SimulatorServicer):
 
         msg = await self._run(call)
         if self.publisher is not None:
-            self._publish_pool.submit(self._publish, msg)
+            self._publish_pool.submit(self.publisher.publish, msg)  # best effort, never blocks
         return msg
-
-    def _publish(self, msg: sim_pb2.Observation) -> None:
-        try:
-            self.publisher.publish(msg)  # type: ignore[union-attr]
-        except Exception:  # noqa: BLE001 - streaming is best effort; gRPC answered already
-            log.exception("publishing the observation on %s failed", OBSERVATION_KEY)
 
     async def Push(self, request, context: grpc.aio.ServicerContext):  # noqa: N802
         p, v = convert.push_request_from_proto(request)
@@ -175,24 +169,17 @@ def main(argv: list[str] | None = None) -> int:
     )
     from sqmanip import streams
 
-    publisher = streams.Publisher(OBSERVATION_KEY)
-    servicer.publisher = publisher  # drops messages until the router answers
-
-    def on_started(_running) -> None:
-        publisher.open(settings)  # after start-up: no fork follows
-
-    try:
-        return run_service(
-            servicer,
-            registrar(servicer),
-            settings,
-            name="sim",
-            host=args.host,
-            port=args.port,
-            on_started=on_started,
-        )
-    finally:
-        publisher.close()
+    # Drops messages until the router answers.
+    servicer.publisher = streams.Publisher(OBSERVATION_KEY)
+    return run_service(
+        servicer,
+        registrar(servicer),
+        settings,
+        name="sim",
+        host=args.host,
+        port=args.port,
+        publisher=servicer.publisher,
+    )
 
 
 if __name__ == "__main__":
