@@ -37,8 +37,10 @@ and the support grid as one ``exp`` of precomputed logs.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
+from collections.abc import Iterator
 
 import numpy as np
 import torch
@@ -466,17 +468,29 @@ def fit_segments(
     settings = settings or PerceptionSettings()
     if not segments:
         return []
+    check_equal_sizes(segments)
+    with torch_threads(settings.torch_threads):
+        return _fit(segments, plane, viewpoint, table_points, settings, amodal, deformable, seed)
+
+
+def check_equal_sizes(segments: list[np.ndarray]) -> None:
+    """The batched fit needs every segment resampled to the same number of points."""
     sizes = {len(s) for s in segments}
     if len(sizes) != 1:
         raise ValueError(f"segments must all have the same number of points, got {sorted(sizes)}")
-    threads = torch.get_num_threads()
-    if settings.torch_threads and settings.torch_threads != threads:
-        torch.set_num_threads(settings.torch_threads)
+
+
+@contextlib.contextmanager
+def torch_threads(n: int | None) -> Iterator[None]:
+    """Run with ``n`` torch intra-op threads (None or 0: leave torch's setting), restored after."""
+    before = torch.get_num_threads()
+    if n and n != before:
+        torch.set_num_threads(n)
     try:
-        return _fit(segments, plane, viewpoint, table_points, settings, amodal, deformable, seed)
+        yield
     finally:
-        if torch.get_num_threads() != threads:
-            torch.set_num_threads(threads)
+        if torch.get_num_threads() != before:
+            torch.set_num_threads(before)
 
 
 def _fit(segments, plane, viewpoint, table_points, settings, amodal, deformable, seed):

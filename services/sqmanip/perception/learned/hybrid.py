@@ -45,6 +45,8 @@ from ..fit import (
     _free_space_samples,
     _optimise,
     _Problem,
+    check_equal_sizes,
+    torch_threads,
     world_part,
 )
 from ..preprocess import PlaneFit
@@ -110,18 +112,10 @@ def refine_parts(
         )
     if not segments:
         return []
-    sizes = {len(x) for x in segments}
-    if len(sizes) != 1:
-        raise ValueError(f"segments must all have the same number of points, got {sorted(sizes)}")
-    before = torch.get_num_threads()
-    if s.torch_threads and s.torch_threads != before:
-        torch.set_num_threads(s.torch_threads)
-    try:
+    check_equal_sizes(segments)
+    with torch_threads(s.torch_threads):
         return _refine(segments, network_parts, plane, viewpoint, table_points, s, amodal,
                        deformable, seed)  # fmt: skip
-    finally:
-        if torch.get_num_threads() != before:
-            torch.set_num_threads(before)
 
 
 def _residual(part: Superquadric, pts: np.ndarray) -> float:

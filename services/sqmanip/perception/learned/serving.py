@@ -17,17 +17,16 @@ training-free path never pays for loading networks.
 
 from __future__ import annotations
 
-import contextlib
 import threading
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from sqmanip.errors import PreconditionError
 from sqmanip.geometry import Superquadric
 
+from ..fit import torch_threads
 from .infer import NetworkRecognizer, NetworkSegmenter
 
 __all__ = [
@@ -40,7 +39,6 @@ __all__ = [
     "get_segmenter",
     "predict_parts",
     "segment_object",
-    "torch_threads",
 ]
 
 REPO = Path(__file__).resolve().parents[4]
@@ -100,19 +98,6 @@ def get_segmenter(model_dir: str | Path | None = None) -> NetworkSegmenter:
     return _load(
         "segmentation", model_dir, DEFAULT_SEGMENTATION_MODEL, "options.segmentation='network'"
     )
-
-
-@contextlib.contextmanager
-def torch_threads(n: int | None) -> Iterator[None]:
-    """Run with ``n`` torch intra-op threads (None or 0: leave torch's setting), restored after."""
-    before = torch.get_num_threads()
-    if n and n != before:
-        torch.set_num_threads(n)
-    try:
-        yield
-    finally:
-        if torch.get_num_threads() != before:
-            torch.set_num_threads(before)
 
 
 def predict_parts(
