@@ -29,6 +29,7 @@ from sqmanip.geometry import PinholeCamera, Superquadric, pack
 from sqmanip.geometry.raycast import bound_box, bound_radius
 from sqmanip.geometry.superquadric import implicit_homogeneous
 from sqmanip.geometry.transforms import se2_matrix
+from sqmanip.sim.config import ShelfGeometry
 
 BOX_E = 0.2
 """Shape exponents of the box-like superquadrics of the shelf boards (C.3)."""
@@ -70,20 +71,9 @@ class ShelfSpec:
     def board_boxes(
         self,
     ) -> list[tuple[str, tuple[float, float, float], tuple[float, float, float]]]:
-        """``(name, half_extents, centre)`` of the five boards in the world frame."""
-        t, d, w, h = self.thickness, self.depth, self.inner_width, self.inner_height
-        cx, z0 = self.front_x + d / 2, self.bottom_z
-        return [
-            ("shelf_bottom", (d / 2, w / 2 + t, t / 2), (cx, 0.0, z0 - t / 2)),
-            ("shelf_top", (d / 2, w / 2 + t, t / 2), (cx, 0.0, z0 + h + t / 2)),
-            (
-                "shelf_back",
-                (t / 2, w / 2 + t, h / 2 + t),
-                (self.front_x + d + t / 2, 0.0, z0 + h / 2),
-            ),
-            ("shelf_left", (d / 2, t / 2, h / 2), (cx, w / 2 + t / 2, z0 + h / 2)),
-            ("shelf_right", (d / 2, t / 2, h / 2), (cx, -w / 2 - t / 2, z0 + h / 2)),
-        ]
+        """``(name, half_extents, centre)`` of the five boards in the world frame (the
+        simulator's own layout, so the search sees the boards the simulator builds)."""
+        return ShelfGeometry(**dataclasses.asdict(self)).boxes()
 
     def boxes(self) -> list[Superquadric]:
         """The five boards as box-like superquadrics (``e1 = e2 = 0.2``, C.3)."""
