@@ -84,3 +84,32 @@ def test_mvbb_contains_the_points_and_reaches_the_plane():
     upright = mvbb_fit(pts, plane)
     assert abs(upright.pose[2, 3] - upright.size[2]) < 1e-9  # bottom face on z = 0
     assert abs(upright.size[2] - 0.05) < 1e-3
+
+
+@pytest.mark.parametrize("kind", ["cone", "box"])
+def test_hand_written_gradient_matches_autograd(kind):
+    """The optimiser's chain rule (radial distance, free space, support, taper, rotation) is
+    the gradient of its loss, at the initial guesses (w = 0) and away from them."""
+    from sqmanip.perception.fit import _initial_problems, _Problem
+    from sqmanip.perception.preprocess import fit_plane_ransac, resample
+
+    scene = make_single_view(kind, 102, camera_scale=0.35)
+    rng = np.random.default_rng(0)
+    plane = fit_plane_ransac(scene.points, rng, viewpoint=scene.viewpoint)
+    table = scene.points[scene.object_ids < 0]
+    segment = resample(scene.points[scene.object_ids == 0], 300, rng)
+    settings = PerceptionSettings()
+    batch, data, _, _ = _initial_problems(
+        [segment], plane, scene.viewpoint, table, settings, True, True, 0
+    )
+    problem = _Problem(batch, data, settings, amodal=True)
+    assert problem.use_free and problem.use_support
+    g = torch.Generator().manual_seed(1)
+    for spread in (0.0, 0.4):
+        u = batch.u + spread * torch.randn(batch.u.shape, generator=g)
+        with torch.no_grad():
+            _, _, mine = problem(u, grad=True)
+        u = u.clone().requires_grad_(True)
+        (ref,) = torch.autograd.grad(problem(u)[0].sum(), u)
+        scale = ref.abs().amax(1, keepdim=True)
+        torch.testing.assert_close(mine / scale, ref / scale, rtol=0, atol=1e-4)
