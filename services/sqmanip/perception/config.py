@@ -108,6 +108,9 @@ class PerceptionSettings(BaseSettings):
     hybrid_seen_radius: float = Field(0.01, gt=0)
     """Network surface points farther than this from every observed point are hidden (m)."""
     torch_threads: int | None = 1
-    """Torch threads while fitting (restored afterwards; None: leave torch's setting). The
-    fitter's tensors are small, so intra-op threads only add synchronisation, which on a
-    loaded 2-core machine costs more than the arithmetic."""
+    """Torch threads of the networks and the hybrid refinement (restored afterwards; None:
+    leave torch's setting): their tensors are small, so intra-op threads only add
+    synchronisation, which on a loaded 2-core machine costs more than the arithmetic."""
+    blas_threads: int | None = 1
+    """BLAS threads while recognizing (None: leave numpy's setting). 1 stops OpenBLAS from
+    spinning idle threads on a second core after each call (see ``perception.threads``)."""

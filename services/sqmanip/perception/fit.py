@@ -17,7 +17,7 @@ The amodal fit adds what one view implies about the unseen side:
   lying ones, besides the PCA axes and their permutations; tapering has a small ``w_k k^2``.
 
 Data term: pseudo-Huber of the radial distance, ``c^2 (sqrt(1 + (delta/c)^2) - 1)``, robust to
-outliers and clustering errors. All (segment, initialisation) problems are one batch in torch:
+outliers and clustering errors. All (segment, initialisation) problems are one numpy batch:
 parameters are kept in range by reparametrisation (sizes by a sigmoid in log space between
 ``size_bounds``, exponents ``e = 0.2 + 1.5 sigmoid`` in [0.2, 1.7] (Table 3.1), taper
 ``k = 0.99 tanh``, rotation ``R0 exp([w])``), optimised with Adam; the best initialisations of each
@@ -28,24 +28,23 @@ bending stays 0 here (none of the primitive types needs it, and the (identity) b
 double the inner loop's cost). ``deformable=False`` fixes ``k = 0`` too.
 
 Cost: both stages run a fixed number of Adam steps over one batch, so the time hardly depends
-on the number of segments: the per-op overhead of the small tensors dominates, not arithmetic.
-The inner loop is therefore written for few ops: one optimised variable (split once), Adam
-written out in place, the radial distance in log space (no ``pow`` with tensor exponents), the
-points pre-rotated into each initial frame, the support grid as one ``exp`` of precomputed logs,
-and the gradient by the chain rule written out instead of autograd (whose graph bookkeeping
-cost two thirds of each step: 3.3 -> 1.2 ms per step for 16 problems of 128 points; a unit
-test checks it against autograd).
+on the number of segments: the per-op overhead of the small arrays dominates, not arithmetic.
+The inner loop is therefore written for few ops: one optimised variable, Adam written out in
+place, the radial distance in log space (no ``pow`` with array exponents), the points
+pre-rotated into each initial frame, the support grid as one ``exp`` of precomputed logs, and
+the gradient by the chain rule written out. It was torch with autograd; autograd's bookkeeping
+took two thirds of each step and torch's per-op dispatch most of the rest (3.3 ms per step for
+16 problems of 128 points in torch with autograd, 1.2 ms with the written-out gradient, about
+0.6 ms in numpy float64). A unit test checks the gradient against finite differences.
 """
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import math
-from collections.abc import Iterator
 
 import numpy as np
-import torch
+from scipy.special import expit
 
 from sqmanip.geometry import Superquadric
 from sqmanip.geometry.deform import TAPER_MIN
@@ -92,15 +91,13 @@ def _frame(points: np.ndarray, plane: PlaneFit | None) -> _Frame:
     return _Frame(np.stack([x, y, z], 1), origin)
 
 
-def world_part(
-    params: torch.Tensor, R: torch.Tensor, t: torch.Tensor, frame: _Frame
-) -> Superquadric:
+def world_part(params: np.ndarray, R: np.ndarray, t: np.ndarray, frame: _Frame) -> Superquadric:
     """A fitted row ``(a1 a2 a3 e1 e2 k ...)`` with its pose in the segment frame -> the world
-    superquadric (rotation re-orthonormalised against float32 round-off)."""
-    p = params.double().numpy()
+    superquadric (rotation re-orthonormalised against round-off)."""
+    p = np.asarray(params, dtype=np.float64)
     pose = np.eye(4)
-    pose[:3, :3] = frame.R @ R.double().numpy()
-    pose[:3, 3] = frame.R @ t.double().numpy() + frame.origin
+    pose[:3, :3] = frame.R @ np.asarray(R, dtype=np.float64)
+    pose[:3, 3] = frame.R @ np.asarray(t, dtype=np.float64) + frame.origin
     u, _, vt = np.linalg.svd(pose[:3, :3])
     pose[:3, :3] = u @ vt
     return Superquadric(
@@ -205,21 +202,26 @@ def _free_space_samples(
     return np.concatenate(samples)
 
 
-def tapered_radial_distance(
-    x: torch.Tensor, params: torch.Tensor
-) -> tuple[torch.Tensor, torch.Tensor]:
+def tapered_radial_distance(x: np.ndarray, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Radial distance (3.3.4) of object-frame points ``x (B, N, 3)`` to tapered superellipsoids
     ``params (B, 9)`` (bending ignored), and the radial scale ``f^{e1/2}(D_t^{-1} x)`` (< 1 inside).
 
     The same value as :func:`sqmanip.geometry.radial_distance` for ``b = 0`` (a unit test checks
     it); see :func:`_log_radial` for how it is computed.
     """
+    params = np.asarray(params, dtype=np.float64)
     a, e, k = params[:, 0:3], params[:, 3:5], params[:, 5:6]
-    dist, log_scale, _ = _log_radial(x, torch.log(a), e, k)
-    return dist, torch.exp(log_scale)
+    dist, log_scale, _ = _log_radial(np.asarray(x, dtype=np.float64), np.log(a), e, k)
+    return dist, np.exp(log_scale)
 
 
-def _log_radial(x: torch.Tensor, log_a: torch.Tensor, e: torch.Tensor, k: torch.Tensor):
+def _logaddexp(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``log(exp(a) + exp(b))``, stable; numpy's own ufunc is ten times slower on small arrays."""
+    top = np.maximum(a, b)
+    return top + np.log1p(np.exp(-np.abs(a - b)))
+
+
+def _log_radial(x: np.ndarray, log_a: np.ndarray, e: np.ndarray, k: np.ndarray):
     """Radial distance ``(B, N)``, ``log`` of the radial scale ``(B, N)`` and the vector-Jacobian
     product of the distance, for ``x (B, N, 3)``, half sizes ``exp(log_a) (B, 3)``, exponents
     ``e (B, 2)`` and taper ``k (B, 1)``.
@@ -231,60 +233,61 @@ def _log_radial(x: torch.Tensor, log_a: torch.Tensor, e: torch.Tensor, k: torch.
     (3.3.4) is ``|x| |1 - 1/scale|``.
 
     The third value maps ``dL/d dist (B, N)`` to ``dL/dx (B, N, 3)``, ``dL/d log_a (B, 3)``,
-    ``dL/de (B, 2)`` and ``dL/dk (B, 1)``: the chain rule written out, because the fitter's
-    tensors are small and autograd's per-op bookkeeping cost twice the arithmetic.
+    ``dL/de (B, 2)`` and ``dL/dk (B, 1)``: the chain rule written out (a unit test checks it
+    against finite differences).
     """
-    e1, e2 = e.split(1, -1)
-    inv_az = torch.exp(-log_a[:, 2:3])  # (B, 1)
+    e1, e2 = e[:, 0:1], e[:, 1:2]
+    inv_az = np.exp(-log_a[:, 2:3])  # (B, 1)
     k_az = k * inv_az
-    t_raw = x[..., 2] * k_az + 1.0  # (B, N)
-    log_t = torch.log(t_raw.clamp_min(TAPER_MIN))
+    xz = x[..., 2]
+    t_raw = xz * k_az + 1.0  # (B, N)
+    log_t = np.log(np.maximum(t_raw, TAPER_MIN))
     p_xy, p_z = 2.0 / e2, 2.0 / e1
-    expo = torch.cat([p_xy, p_xy, p_z], -1).unsqueeze(1)  # (B, 1, 3)
-    ax = x.abs()
-    y = (torch.log(ax.clamp_min(1e-30)) - log_a.unsqueeze(1)) * expo  # (B, N, 3)
-    y0, y1, y2 = y.unbind(-1)
-    l_xy = torch.logaddexp(y0, y1)
+    expo = np.concatenate([p_xy, p_xy, p_z], -1)[:, None, :]  # (B, 1, 3)
+    ax = np.abs(x)
+    y = (np.log(np.maximum(ax, 1e-30)) - log_a[:, None, :]) * expo  # (B, N, 3)
+    y0, y1, y2 = y[..., 0], y[..., 1], y[..., 2]
+    l_xy = _logaddexp(y0, y1)
     inner = l_xy - log_t * p_xy
     ratio = e2 / e1
     A = inner * ratio
-    Z = torch.logaddexp(A, y2)
+    Z = _logaddexp(A, y2)
     log_scale = Z * (0.5 * e1)
-    norm = torch.linalg.vector_norm(x, dim=-1)
-    m = 1.0 - torch.exp(-log_scale)
-    dist = norm * m.abs()
+    norm = np.sqrt((x * x).sum(-1))
+    m = 1.0 - np.exp(-log_scale)
+    dist = norm * np.abs(m)
 
-    def vjp(g_dist: torch.Tensor):
-        g_S = g_dist * norm * torch.sign(m) * (1.0 - m)  # through |1 - exp(-S)|
+    def vjp(g_dist: np.ndarray):
+        g_S = g_dist * norm * np.sign(m) * (1.0 - m)  # through |1 - exp(-S)|
         g_Z = g_S * (0.5 * e1)
-        g_A = g_Z * torch.exp(A - Z)  # logaddexp's softmax weights
+        g_A = g_Z * np.exp(A - Z)  # logaddexp's softmax weights
         g_inner = g_A * ratio
-        g_y0 = g_inner * torch.exp(y0 - l_xy)
-        g_y = torch.stack([g_y0, g_inner - g_y0, g_Z - g_A], -1)  # (B, N, 3)
+        g_y0 = g_inner * np.exp(y0 - l_xy)
+        g_y = np.stack([g_y0, g_inner - g_y0, g_Z - g_A], -1)  # (B, N, 3)
         g_l = g_y * expo  # d/d(log|x| - log a)
         gy_y = (g_y * y).sum(1)  # (B, 3): y = l p, so dL/dp = sum g_y y / p
-        g_pxy = (gy_y[:, 0:1] + gy_y[:, 1:2]) / p_xy - (g_inner * log_t).sum(-1, keepdim=True)
-        g_ratio = (g_A * inner).sum(-1, keepdim=True)
-        g_e1 = 0.5 * (g_S * Z).sum(-1, keepdim=True) - (g_ratio * ratio + gy_y[:, 2:3]) / e1
+        g_pxy = (gy_y[:, 0:1] + gy_y[:, 1:2]) / p_xy - (g_inner * log_t).sum(-1, keepdims=True)
+        g_ratio = (g_A * inner).sum(-1, keepdims=True)
+        g_e1 = 0.5 * (g_S * Z).sum(-1, keepdims=True) - (g_ratio * ratio + gy_y[:, 2:3]) / e1
         g_e2 = g_ratio / e1 - 2.0 * g_pxy / (e2 * e2)
         g_t = (g_inner * -p_xy) / t_raw * (t_raw > TAPER_MIN)  # through log t (clamped: 0)
-        g_x = torch.where(ax >= 1e-30, g_l / x, 0.0)
-        g_x = g_x + (g_dist * m.abs() / norm.clamp_min(1e-30)).unsqueeze(-1) * x
+        g_x = np.divide(g_l, x, out=np.zeros_like(g_l), where=ax >= 1e-30)
+        g_x += (g_dist * np.abs(m) / np.maximum(norm, 1e-30))[..., None] * x
         g_x[..., 2] += g_t * k_az
-        gt_z = (g_t * x[..., 2]).sum(-1, keepdim=True)  # (B, 1)
+        gt_z = (g_t * xz).sum(-1, keepdims=True)  # (B, 1)
         g_log_a = -g_l.sum(1)
         g_log_a[:, 2:3] -= gt_z * k_az
-        return g_x, g_log_a, torch.cat([g_e1, g_e2], -1), gt_z * inv_az
+        return g_x, g_log_a, np.concatenate([g_e1, g_e2], -1), gt_z * inv_az
 
     return dist, log_scale, vjp
 
 
-def _grid_constants() -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def _grid_constants() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Constants of the support grid (2.2.2) on a fixed ``(eta, omega)`` grid of ``G`` points.
 
     ``signed_pow(cos eta, e1) signed_pow(cos omega, e2)`` is ``sign * exp(e1 L1 + e2 L2)`` with
     ``L = log|.|``, so the whole surface of a batch is one ``exp`` of an affine map of ``(e1, e2)``.
-    Returns ``sign (G, 3)``, ``L1 (G, 3)`` and ``L2 (G, 3)`` (float32).
+    Returns ``sign (G, 3)``, ``L1 (G, 3)`` and ``L2 (G, 3)``.
     """
     eta = np.linspace(-math.pi / 2, math.pi / 2, 7)
     omega = np.linspace(-math.pi, math.pi, 9)[:-1]
@@ -298,52 +301,50 @@ def _grid_constants() -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     zero = np.zeros_like(E)
     L1 = np.stack([log(ce), log(ce), log(se)], 1)
     L2 = np.stack([log(cw), log(sw), zero], 1)
-    f32 = torch.float32
-    return (
-        torch.as_tensor(sign, dtype=f32),
-        torch.as_tensor(L1, dtype=f32),
-        torch.as_tensor(L2, dtype=f32),
-    )
+    return sign, L1, L2
 
 
 _GRID_SIGN, _GRID_L1, _GRID_L2 = _grid_constants()
-_LEVI = torch.zeros(3, 9)
+_LEVI = np.zeros((3, 9))
 """``w @ _LEVI`` is the flattened skew matrix ``[w]`` (one op instead of a stack of nine)."""
 for _i, _j, _k, _s in ((2, 1, 0, 1), (1, 2, 0, -1), (0, 2, 1, 1), (2, 0, 1, -1), (1, 0, 2, 1),
                        (0, 1, 2, -1)):  # fmt: skip
     _LEVI[_k, 3 * _i + _j] = _s
-_EYE = torch.eye(3)
+_EYE = np.eye(3)
 
 # columns of the single optimised variable ``u (B, 12)``
 _A, _E, _K, _W, _T = slice(0, 3), slice(3, 5), slice(5, 6), slice(6, 9), slice(9, 12)
 
 
-def _so3_exp(w: torch.Tensor):
+def _so3_exp(w: np.ndarray):
     """Rodrigues' formula for ``w (B, 3)`` in few ops (the optimiser's inner loop), and its
     vector-Jacobian product ``dL/dE (B, 3, 3) -> dL/dw (B, 3)``.
 
-    Same as :func:`sqmanip.geometry.so3_exp`; near ``w = 0`` the first-order terms are exact
-    enough (the second-order coefficient's float32 error multiplies ``|w|^2``), and the
-    derivatives of ``sin t / t`` and ``(1 - cos t) / t^2`` switch to their series.
+    Same as :func:`sqmanip.geometry.so3_exp`; near ``w = 0`` the derivatives of ``sin t / t``
+    and ``(1 - cos t) / t^2`` switch to their series.
     """
-    K = (w @ _LEVI).view(-1, 3, 3)
-    t2 = (w * w).sum(-1).clamp_min(1e-12).view(-1, 1, 1)
-    t = t2.sqrt()
-    sin, cos = torch.sin(t), torch.cos(t)
+    K = (w @ _LEVI).reshape(-1, 3, 3)
+    t2 = np.maximum((w * w).sum(-1), 1e-12)[:, None, None]
+    t = np.sqrt(t2)
+    sin, cos = np.sin(t), np.cos(t)
     alpha, beta = sin / t, (1 - cos) / t2
     KK = K @ K
     E = _EYE + alpha * K + beta * KK
 
-    def vjp(g_E: torch.Tensor) -> torch.Tensor:
-        Kt = K.transpose(1, 2)
+    def vjp(g_E: np.ndarray) -> np.ndarray:
+        Kt = K.transpose(0, 2, 1)
         g_K = alpha * g_E + beta * (g_E @ Kt + Kt @ g_E)
         small = t2 < 1e-2
-        d_alpha = torch.where(small, t2 / 60 - 1 / 6, (t * cos - sin) / (2 * t2 * t))
-        d_beta = torch.where(small, t2 / 360 - 1 / 24, (t * sin - 2 * (1 - cos)) / (2 * t2 * t2))
-        g_t2 = (g_E * K).sum((1, 2)) * d_alpha.view(-1) + (g_E * KK).sum((1, 2)) * d_beta.view(-1)
-        return g_K.reshape(-1, 9) @ _LEVI.T + (2.0 * g_t2).unsqueeze(-1) * w
+        d_alpha = np.where(small, t2 / 60 - 1 / 6, (t * cos - sin) / (2 * t2 * t))
+        d_beta = np.where(small, t2 / 360 - 1 / 24, (t * sin - 2 * (1 - cos)) / (2 * t2 * t2))
+        g_t2 = (g_E * K).sum((1, 2)) * d_alpha[:, 0, 0] + (g_E * KK).sum((1, 2)) * d_beta[:, 0, 0]
+        return g_K.reshape(-1, 9) @ _LEVI.T + (2.0 * g_t2)[:, None] * w
 
     return E, vjp
+
+
+def _logit(p: np.ndarray) -> np.ndarray:
+    return np.log(p / (1.0 - p))
 
 
 class _Batch:
@@ -353,82 +354,81 @@ class _Batch:
     ``e = 0.2 + 1.5 sigmoid(u_e)``, ``k = 0.99 tanh(u_k)``, ``R = R0 exp([w])`` and
     ``t = t0 + T_SCALE R0 u_t`` (translation steps in the initial object frame).
 
-    One leaf tensor (instead of five) keeps the optimiser to a handful of ops per step.
+    One variable (instead of five) keeps the optimiser to a handful of ops per step.
     """
 
     def __init__(self, R0, t0, a0, e0, lo: float, hi: float, deformable: bool):
+        R0, t0, a0, e0 = (np.asarray(v, dtype=np.float64) for v in (R0, t0, a0, e0))
         B = R0.shape[0]
         self.R0 = R0
-        self.t0_obj = (t0.unsqueeze(1) @ R0).squeeze(1)  # t0 in the initial object frame
+        self.t0_obj = (t0[:, None, :] @ R0)[:, 0]  # t0 in the initial object frame
         self.log_lo, self.log_span = math.log(lo), math.log(hi) - math.log(lo)
-        frac = (torch.log(a0.clamp(lo * 1.01, hi * 0.99)) - self.log_lo) / self.log_span
-        u = torch.zeros(B, 12)
-        u[:, _A] = torch.logit(frac)
-        u[:, _E] = torch.logit((e0 - E_LO) / E_SPAN)
+        frac = (np.log(np.clip(a0, lo * 1.01, hi * 0.99)) - self.log_lo) / self.log_span
+        u = np.zeros((B, 12))
+        u[:, _A] = _logit(frac)
+        u[:, _E] = _logit((e0 - E_LO) / E_SPAN)
         self.u = u
         self.deformable = deformable
         self.k_mask = 1.0 if deformable else 0.0
 
-    def select(self, idx: torch.Tensor) -> _Batch:
+    def select(self, idx: np.ndarray) -> _Batch:
         new = object.__new__(_Batch)
         new.R0, new.t0_obj = self.R0[idx], self.t0_obj[idx]
         new.log_lo, new.log_span = self.log_lo, self.log_span
         new.deformable, new.k_mask = self.deformable, self.k_mask
-        new.u = self.u.detach()[idx].clone()
+        new.u = self.u[idx].copy()
         return new
 
-    def unpack(self, u: torch.Tensor | None = None):
+    def unpack(self, u: np.ndarray | None = None):
         """``params (B, 9)``, the rotation update ``E = exp([w])`` (``R = R0 E``) and the
         translation ``t_obj (B, 3)`` in the initial object frame (``t = R0 t_obj``)."""
         log_a, e, k, E, t_obj, _ = self.fields(self.u if u is None else u)
-        params = torch.cat([torch.exp(log_a), e, k, torch.zeros_like(log_a)], -1)  # no bending
+        params = np.concatenate([np.exp(log_a), e, k, np.zeros_like(log_a)], -1)  # no bending
         return params, E, t_obj
 
-    def fields(self, u: torch.Tensor):
+    def fields(self, u: np.ndarray):
         """``log a (B, 3)``, ``e (B, 2)``, ``k (B, 1)``, ``E (B, 3, 3)``, ``t_obj (B, 3)`` of
         ``u``, and the map from the gradients w.r.t. those five to the gradient w.r.t. ``u``."""
-        u_ae, u_k, w, u_t = u.split([5, 1, 3, 3], 1)
-        s_ae = torch.sigmoid(u_ae)
-        s_a, s_e = s_ae.split([3, 2], 1)
-        log_a = self.log_lo + self.log_span * s_a
-        e = E_LO + E_SPAN * s_e
+        s_ae = expit(u[:, 0:5])
+        log_a = self.log_lo + self.log_span * s_ae[:, 0:3]
+        e = E_LO + E_SPAN * s_ae[:, 3:5]
         k_scale = K_MAX * self.k_mask
-        tanh_k = torch.tanh(u_k)
-        E, so3_vjp = _so3_exp(w)
+        tanh_k = np.tanh(u[:, _K])
+        E, so3_vjp = _so3_exp(u[:, _W])
 
-        def vjp(g_log_a, g_e, g_k, g_E, g_t) -> torch.Tensor:
-            ds = s_ae * (1.0 - s_ae)
-            g_ae = torch.cat([g_log_a * self.log_span, g_e * E_SPAN], 1) * ds
+        def vjp(g_log_a, g_e, g_k, g_E, g_t) -> np.ndarray:
+            g_ae = np.concatenate([g_log_a * self.log_span, g_e * E_SPAN], 1)
             g_uk = g_k * (k_scale * (1.0 - tanh_k * tanh_k))
-            return torch.cat([g_ae, g_uk, so3_vjp(g_E), T_SCALE * g_t], 1)
+            return np.concatenate(
+                [g_ae * s_ae * (1.0 - s_ae), g_uk, so3_vjp(g_E), T_SCALE * g_t], 1
+            )
 
-        return log_a, e, k_scale * tanh_k, E, self.t0_obj + T_SCALE * u_t, vjp
+        return log_a, e, k_scale * tanh_k, E, self.t0_obj + T_SCALE * u[:, _T], vjp
 
-    def pose(self) -> tuple[torch.Tensor, torch.Tensor]:
+    def pose(self) -> tuple[np.ndarray, np.ndarray]:
         """``R (B, 3, 3)`` and ``t (B, 3)`` in the local frame."""
-        with torch.no_grad():
-            _, E, t_obj = self.unpack()
-            return self.R0 @ E, (self.R0 @ t_obj.unsqueeze(-1)).squeeze(-1)
+        _, E, t_obj = self.unpack()
+        return self.R0 @ E, (self.R0 @ t_obj[:, :, None])[..., 0]
 
 
 @dataclasses.dataclass
 class _Data:
-    X: torch.Tensor  # (B, P, 3) observed points, local frame
-    F: torch.Tensor  # (B, Fm, 3) free-space samples, local frame
-    Fw: torch.Tensor  # (B, Fm) weights (0 = padding)
-    contact: torch.Tensor  # (B,) 1 if the segment rests on the plane
+    X: np.ndarray  # (B, P, 3) observed points, local frame
+    F: np.ndarray  # (B, Fm, 3) free-space samples, local frame
+    Fw: np.ndarray  # (B, Fm) weights (0 = padding)
+    contact: np.ndarray  # (B,) True if the segment rests on the plane
     has_plane: bool
 
-    def select(self, idx: torch.Tensor) -> _Data:
+    def select(self, idx: np.ndarray) -> _Data:
         return _Data(self.X[idx], self.F[idx], self.Fw[idx], self.contact[idx], self.has_plane)
 
-    def subset(self, n_points: int, n_free: int, g: torch.Generator) -> _Data:
+    def subset(self, n_points: int, n_free: int, rng: np.random.Generator) -> _Data:
         """The same problems on random subsets of the points and free-space samples."""
         P, Fm = self.X.shape[1], self.F.shape[1]
         if n_points >= P and n_free >= Fm:
             return self
-        pi = torch.randperm(P, generator=g)[: min(n_points, P)]
-        fi = torch.randperm(Fm, generator=g)[: min(n_free, Fm)]
+        pi = rng.permutation(P)[: min(n_points, P)]
+        fi = rng.permutation(Fm)[: min(n_free, Fm)]
         return _Data(self.X[:, pi], self.F[:, fi], self.Fw[:, fi], self.contact, self.has_plane)
 
 
@@ -441,28 +441,29 @@ class _Problem:
         self.batch, self.settings, self.amodal = batch, settings, amodal
         self.n = data.X.shape[1]
         self.use_free = amodal and data.F.shape[1] > 0 and settings.free_space_weight > 0
-        pts = torch.cat([data.X, data.F], 1) if self.use_free else data.X
+        pts = np.concatenate([data.X, data.F], 1) if self.use_free else data.X
         self.P0 = pts @ batch.R0  # (B, N, 3) in the initial object frames
-        self.P0t = self.P0.transpose(1, 2).contiguous()
-        norm = settings.free_space_weight / data.Fw.sum(-1, keepdim=True).clamp_min(1.0)
+        self.P0t = np.ascontiguousarray(self.P0.transpose(0, 2, 1))
+        norm = settings.free_space_weight / np.maximum(data.Fw.sum(-1, keepdims=True), 1.0)
         self.Fw = data.Fw * norm  # (B, Fm): padding 0, each problem's weights sum to w_f
         self.use_support = amodal and data.has_plane and settings.support_weight > 0
-        self.contact = data.contact > 0
+        self.contact = np.asarray(data.contact, dtype=bool)
         self.R0z = batch.R0[:, 2:3, :]  # (B, 1, 3) local z row of R0
         c = settings.huber_delta
         self.c, self.c2, self.inv_n = c, c * c, 1.0 / self.n
 
-    def __call__(self, u: torch.Tensor, data_only: bool = False, grad: bool = False):
+    def __call__(self, u: np.ndarray, data_only: bool = False, grad: bool = False):
         """Per-problem loss ``(B,)`` and the radial distances ``(B, P)`` of the points; with
         ``grad``, also the gradient of ``loss.sum()`` w.r.t. ``u (B, 12)``, by the chain rule
-        written out (see :func:`_log_radial`; a unit test checks it against autograd)."""
+        written out (see :func:`_log_radial`; a unit test checks it against finite
+        differences)."""
         s, n = self.settings, self.n
         log_a, e, k, E, t_obj, fields_vjp = self.batch.fields(u)
-        local = torch.baddbmm(-(t_obj.unsqueeze(1) @ E), self.P0, E)  # (P0 - t_obj) E
+        local = self.P0 @ E - t_obj[:, None, :] @ E  # (P0 - t_obj) E
         dist, log_scale, radial_vjp = _log_radial(local, log_a, e, k)
-        delta, d_free = dist.split([n, dist.shape[1] - n], 1)
+        delta, d_free = dist[:, :n], dist[:, n:]
         # pseudo-Huber c^2 (sqrt(1 + (d/c)^2) - 1) = c sqrt(c^2 + d^2) - c^2
-        root = (delta * delta + self.c2).sqrt()
+        root = np.sqrt(delta * delta + self.c2)
         loss = root.sum(-1) * (self.c * self.inv_n) - self.c2
         if self.batch.deformable:
             loss = loss + s.taper_weight * k[:, 0] ** 2
@@ -478,16 +479,16 @@ class _Problem:
         if not grad:
             return loss, delta
 
-        g_dist = delta / root * (self.c * self.inv_n)
-        if d_free.shape[1]:
-            g_free = 2.0 * free_w * d_free if free_w is not None else torch.zeros_like(d_free)
-            g_dist = torch.cat([g_dist, g_free], 1)
+        g_dist = np.zeros_like(dist)
+        g_dist[:, :n] = delta / root * (self.c * self.inv_n)
+        if free_w is not None:
+            g_dist[:, n:] = 2.0 * free_w * d_free
         g_x, g_log_a, g_e, g_k = radial_vjp(g_dist)
         if self.batch.deformable:
             g_k = g_k + 2.0 * s.taper_weight * k
         sum_gx = g_x.sum(1)  # (B, 3)
-        g_E = torch.baddbmm(-(t_obj.unsqueeze(-1) * sum_gx.unsqueeze(1)), self.P0t, g_x)
-        g_t = -(E @ sum_gx.unsqueeze(-1)).squeeze(-1)
+        g_E = self.P0t @ g_x - t_obj[:, :, None] * sum_gx[:, None, :]
+        g_t = -(E @ sum_gx[:, :, None])[..., 0]
         if support is not None:
             gap, support_vjp = support
             g_log_a, g_e, g_k, g_E, g_t = support_vjp(
@@ -499,34 +500,35 @@ class _Problem:
         """The support gap ``(B,)``: the lowest point of the surface grid (2.2.2, tapered by
         2.3.11) above the plane if the segment rests on it, else how far it goes below; and the
         map adding ``dL/dgap`` (through the lowest grid point) to the other gradients."""
-        a = torch.exp(log_a)  # (B, 3)
+        a = np.exp(log_a)  # (B, 3)
         expo = e[:, None, 0:1] * _GRID_L1 + e[:, None, 1:2] * _GRID_L2  # (B, G, 3)
-        grid = _GRID_SIGN * torch.exp(expo)  # unit-size grid
-        sx, sy, sz = grid.unbind(-1)
+        grid = _GRID_SIGN * np.exp(expo)  # unit-size grid
+        sx, sy, sz = grid[..., 0], grid[..., 1], grid[..., 2]
         taper_raw = k * sz + 1.0  # D_t (2.3.11), z / a3 = sz
-        taper = taper_raw.clamp_min(TAPER_MIN)
-        row = self.R0z @ E  # (B, 1, 3): local z row of R = R0 E
-        r = (row * a.unsqueeze(1)).squeeze(1)  # (B, 3): times the sizes
-        height = (self.R0z @ t_obj.unsqueeze(-1))[:, 0, 0]  # (B,)
-        z = (sx * r[:, 0:1] + sy * r[:, 1:2]) * taper + sz * r[:, 2:3] + height.unsqueeze(-1)
-        zmin, j = z.min(-1)
-        gap = torch.where(self.contact, zmin, torch.relu(-zmin))
+        taper = np.maximum(taper_raw, TAPER_MIN)
+        row = (self.R0z @ E)[:, 0]  # (B, 3): local z row of R = R0 E
+        r = row * a  # times the sizes
+        height = (self.R0z[:, 0] * t_obj).sum(-1)  # (B,)
+        z = (sx * r[:, 0:1] + sy * r[:, 1:2]) * taper + sz * r[:, 2:3] + height[:, None]
+        rows = np.arange(len(z))
+        j = z.argmin(-1)
+        zmin = z[rows, j]
+        gap = np.where(self.contact, zmin, np.maximum(-zmin, 0.0))
 
         def vjp(g_gap, g_log_a, g_e, g_k, g_E, g_t):
-            g_z = (g_gap * torch.where(self.contact, 1.0, -(zmin < 0).float())).unsqueeze(-1)
-            gj = grid[torch.arange(len(j)), j]  # (B, 3): the lowest grid point
-            tj = taper.gather(1, j[:, None])
-            free_taper = taper_raw.gather(1, j[:, None]) > TAPER_MIN
+            g_z = (g_gap * np.where(self.contact, 1.0, -1.0 * (zmin < 0.0)))[:, None]
+            gj = grid[rows, j]  # (B, 3): the lowest grid point
+            tj = taper[rows, j][:, None]
+            free_taper = taper_raw[rows, j][:, None] > TAPER_MIN
             g_taper = g_z * (gj[:, 0:1] * r[:, 0:1] + gj[:, 1:2] * r[:, 1:2]) * free_taper
-            g_r = g_z * torch.cat([gj[:, :2] * tj, gj[:, 2:3]], 1)
-            g_grid = torch.cat([g_z * r[:, :2] * tj, g_z * r[:, 2:3] + g_taper * k], 1)
+            g_r = g_z * np.concatenate([gj[:, :2] * tj, gj[:, 2:3]], 1)
+            g_grid = np.concatenate([g_z * r[:, :2] * tj, g_z * r[:, 2:3] + g_taper * k], 1)
             g_expo = g_grid * gj  # d exp(expo) = exp(expo) d expo
-            L1, L2 = _GRID_L1[j], _GRID_L2[j]
-            g_e = g_e + torch.cat(
-                [(g_expo * L1).sum(-1, keepdim=True), (g_expo * L2).sum(-1, keepdim=True)], 1
+            g_e = g_e + np.stack(
+                [(g_expo * _GRID_L1[j]).sum(-1), (g_expo * _GRID_L2[j]).sum(-1)], 1
             )
-            g_log_a = g_log_a + g_r * row[:, 0] * a
-            g_E = g_E + self.R0z.transpose(1, 2) * (g_r * a).unsqueeze(1)
+            g_log_a = g_log_a + g_r * row * a
+            g_E = g_E + self.R0z.transpose(0, 2, 1) * (g_r * a)[:, None, :]
             g_t = g_t + g_z * self.R0z[:, 0]
             return g_log_a, g_e, g_k + g_taper * gj[:, 2:3], g_E, g_t
 
@@ -537,25 +539,25 @@ def _optimise(problem: _Problem, steps: int, lr: float, lr_final: float) -> None
     """Adam on ``problem.batch.u`` (in place) for ``steps`` steps, the learning rate following
     a cosine from ``lr`` to ``lr_final`` (large moves first, then settle in few steps).
 
-    Written out (instead of ``torch.optim.Adam``) on the single variable, with the problem's
-    own gradient (no autograd): a handful of in-place ops per step.
+    Written out on the single variable, with the problem's own gradient: a handful of in-place
+    ops per step.
     """
     if steps <= 0:
         return
     b1, b2, eps = 0.9, 0.999, 1e-8
-    u = problem.batch.u.detach().clone()
-    m = torch.zeros_like(u)
-    v = torch.zeros_like(u)
-    with torch.no_grad():
-        for i in range(steps):
-            _, _, g = problem(u, grad=True)
-            cos = 0.5 * (1 + math.cos(math.pi * i / max(steps - 1, 1)))
-            lr_i = lr_final + (lr - lr_final) * cos
-            m.mul_(b1).add_(g, alpha=1 - b1)
-            v.mul_(b2).addcmul_(g, g, value=1 - b2)
-            bc1, bc2 = 1 - b1 ** (i + 1), 1 - b2 ** (i + 1)
-            denom = (v / bc2).sqrt_().add_(eps)
-            u.addcdiv_(m, denom, value=-lr_i / bc1)
+    u = problem.batch.u.copy()
+    m = np.zeros_like(u)
+    v = np.zeros_like(u)
+    for i in range(steps):
+        _, _, g = problem(u, grad=True)
+        cos = 0.5 * (1 + math.cos(math.pi * i / max(steps - 1, 1)))
+        lr_i = lr_final + (lr - lr_final) * cos
+        m *= b1
+        m += (1 - b1) * g
+        v *= b2
+        v += (1 - b2) * g * g
+        bc1, bc2 = 1 - b1 ** (i + 1), 1 - b2 ** (i + 1)
+        u -= (lr_i / bc1) * m / (np.sqrt(v / bc2) + eps)
     problem.batch.u = u
 
 
@@ -580,8 +582,7 @@ def fit_segments(
     if not segments:
         return []
     check_equal_sizes(segments)
-    with torch_threads(settings.torch_threads):
-        return _fit(segments, plane, viewpoint, table_points, settings, amodal, deformable, seed)
+    return _fit(segments, plane, viewpoint, table_points, settings, amodal, deformable, seed)
 
 
 def check_equal_sizes(segments: list[np.ndarray]) -> None:
@@ -589,19 +590,6 @@ def check_equal_sizes(segments: list[np.ndarray]) -> None:
     sizes = {len(s) for s in segments}
     if len(sizes) != 1:
         raise ValueError(f"segments must all have the same number of points, got {sorted(sizes)}")
-
-
-@contextlib.contextmanager
-def torch_threads(n: int | None) -> Iterator[None]:
-    """Run with ``n`` torch intra-op threads (None or 0: leave torch's setting), restored after."""
-    before = torch.get_num_threads()
-    if n and n != before:
-        torch.set_num_threads(n)
-    try:
-        yield
-    finally:
-        if torch.get_num_threads() != before:
-            torch.set_num_threads(before)
 
 
 def _initial_problems(segments, plane, viewpoint, table_points, settings, amodal, deformable, seed):
@@ -631,7 +619,7 @@ def _initial_problems(segments, plane, viewpoint, table_points, settings, amodal
             a0s.append(half)
             Xs.append(X)
             Fs.append(F)
-            contacts.append(float(contact))
+            contacts.append(contact)
             owner.append(si)
 
     B = len(R0s)
@@ -641,25 +629,10 @@ def _initial_problems(segments, plane, viewpoint, table_points, settings, amodal
     for i, f in enumerate(Fs):
         Fpad[i, : len(f)] = f
         Fw[i, : len(f)] = 1.0
-    f32 = torch.float32
-    data = _Data(
-        torch.as_tensor(np.stack(Xs), dtype=f32),
-        torch.as_tensor(Fpad, dtype=f32),
-        torch.as_tensor(Fw, dtype=f32),
-        torch.as_tensor(contacts, dtype=f32),
-        use_plane,
-    )
-    e0 = torch.tensor(settings.initial_shape, dtype=f32).expand(B, 2)
-    batch = _Batch(
-        torch.as_tensor(np.stack(R0s), dtype=f32),
-        torch.as_tensor(np.stack(t0s), dtype=f32),
-        torch.as_tensor(np.stack(a0s), dtype=f32),
-        e0,
-        lo,
-        hi,
-        deformable,
-    )
-    return batch, data, owner, frames
+    data = _Data(np.stack(Xs), Fpad, Fw, np.array(contacts), use_plane)
+    e0 = np.broadcast_to(np.asarray(settings.initial_shape, dtype=np.float64), (B, 2))
+    batch = _Batch(np.stack(R0s), np.stack(t0s), np.stack(a0s), e0, lo, hi, deformable)
+    return batch, data, np.array(owner), frames
 
 
 def _fit(segments, plane, viewpoint, table_points, settings, amodal, deformable, seed):
@@ -669,38 +642,33 @@ def _fit(segments, plane, viewpoint, table_points, settings, amodal, deformable,
     full_data = data
     # stage 1: every initialisation on a random subset of the points and free-space samples,
     # for a few steps only: enough to rank the initialisations of each segment
-    g = torch.Generator().manual_seed(seed)
-    small = data.subset(settings.select_points, settings.select_free_points, g)
+    rng = np.random.default_rng([seed, 1])
+    small = data.subset(settings.select_points, settings.select_free_points, rng)
     problem = _Problem(batch, small, settings, amodal)
     _optimise(problem, settings.fit_iterations, settings.learning_rate, settings.learning_rate)
-    with torch.no_grad():
-        loss, _ = problem(batch.u)
-    owner_t = torch.as_tensor(owner)
+    loss, _ = problem(batch.u)
     # stage 2: the best initialisations of each segment, on more points
-    keep = []
-    for si in range(len(segments)):
-        idx = torch.nonzero(owner_t == si).squeeze(-1)
-        order = torch.argsort(loss[idx])[: settings.refine_keep]
-        keep.append(idx[order])
-    keep_t = torch.cat(keep)
-    batch = batch.select(keep_t)
-    data = data.select(keep_t).subset(settings.refine_points, settings.refine_free_points, g)
-    owner_t = owner_t[keep_t]
+    keep = np.concatenate(
+        [
+            idx[np.argsort(loss[idx], kind="stable")[: settings.refine_keep]]
+            for idx in (np.flatnonzero(owner == si) for si in range(len(segments)))
+        ]
+    )
+    batch = batch.select(keep)
+    data = data.select(keep).subset(settings.refine_points, settings.refine_free_points, rng)
+    owner = owner[keep]
     problem = _Problem(batch, data, settings, amodal)
     lr2 = settings.refine_learning_rate
     _optimise(problem, settings.refine_iterations, lr2, lr2 * (1.0 - settings.lr_decay))
-    with torch.no_grad():
-        loss, _ = problem(batch.u)
-        params, _, _ = batch.unpack()
-        R, t = batch.pose()
-        # residual on all points of each segment
-        full = _Problem(batch, full_data.select(keep_t), settings, False)
-        _, delta = full(batch.u, data_only=True)
+    loss, _ = problem(batch.u)
+    params, _, _ = batch.unpack()
+    R, t = batch.pose()
+    # residual on all points of each segment
+    _, delta = _Problem(batch, full_data.select(keep), settings, False)(batch.u, data_only=True)
     results = []
     for si in range(len(segments)):
-        idx = torch.nonzero(owner_t == si).squeeze(-1)
-        best = int(idx[torch.argmin(loss[idx])])
+        idx = np.flatnonzero(owner == si)
+        best = int(idx[np.argmin(loss[idx])])
         part = world_part(params[best], R[best], t[best], frames[si])
-        residual = float((delta[best].double() ** 2).mean())
-        results.append(FitResult(part, residual, float(loss[best])))
+        results.append(FitResult(part, float((delta[best] ** 2).mean()), float(loss[best])))
     return results

@@ -23,6 +23,7 @@ from .fit import fit_segments
 from .mvbb import mvbb_fit
 from .preprocess import crop_mask, fit_plane_ransac, resample
 from .segment import cluster, cluster_with_groups, segments_from_labels
+from .threads import blas_threads
 from .types import RecognizedObject, RecognizeRequest, Scene
 from .validate import validate_request
 
@@ -158,6 +159,10 @@ class Recognizer:
         return segments, groups
 
     def recognize(self, request: RecognizeRequest) -> Scene:
+        with blas_threads(self.settings.blas_threads):
+            return self._recognize(request)
+
+    def _recognize(self, request: RecognizeRequest) -> Scene:
         t_start = time.perf_counter()
         s = self.settings
         valid = validate_request(request, s)

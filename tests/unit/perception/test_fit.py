@@ -22,8 +22,8 @@ def test_tapered_radial_distance_matches_the_geometry_core():
     k = -0.9 + 1.8 * torch.rand(B, 1, generator=g)
     params = torch.cat([a, e, k, torch.zeros(B, 3)], -1).double()
     x = 0.2 * torch.randn(B, 200, 3, generator=g).double()
-    mine, scale = tapered_radial_distance(x, params)
-    torch.testing.assert_close(mine, radial_distance(x, params), rtol=1e-6, atol=1e-9)
+    mine, scale = tapered_radial_distance(x.numpy(), params.numpy())
+    np.testing.assert_allclose(mine, radial_distance(x, params).numpy(), rtol=1e-6, atol=1e-9)
     assert scale.shape == (B, 200)
 
 
@@ -87,9 +87,9 @@ def test_mvbb_contains_the_points_and_reaches_the_plane():
 
 
 @pytest.mark.parametrize("kind", ["cone", "box"])
-def test_hand_written_gradient_matches_autograd(kind):
+def test_hand_written_gradient_matches_finite_differences(kind):
     """The optimiser's chain rule (radial distance, free space, support, taper, rotation) is
-    the gradient of its loss, at the initial guesses (w = 0) and away from them."""
+    the gradient of its loss (central differences), at the initial guesses (w = 0) and away."""
     from sqmanip.perception.fit import _initial_problems, _Problem
     from sqmanip.perception.preprocess import fit_plane_ransac, resample
 
@@ -104,12 +104,15 @@ def test_hand_written_gradient_matches_autograd(kind):
     )
     problem = _Problem(batch, data, settings, amodal=True)
     assert problem.use_free and problem.use_support
-    g = torch.Generator().manual_seed(1)
+    rng = np.random.default_rng(1)
+    h = 1e-6
     for spread in (0.0, 0.4):
-        u = batch.u + spread * torch.randn(batch.u.shape, generator=g)
-        with torch.no_grad():
-            _, _, mine = problem(u, grad=True)
-        u = u.clone().requires_grad_(True)
-        (ref,) = torch.autograd.grad(problem(u)[0].sum(), u)
-        scale = ref.abs().amax(1, keepdim=True)
-        torch.testing.assert_close(mine / scale, ref / scale, rtol=0, atol=1e-4)
+        u = batch.u + spread * rng.standard_normal(batch.u.shape)
+        _, _, mine = problem(u, grad=True)
+        numeric = np.zeros_like(u)
+        for j in range(u.shape[1]):  # rows are independent problems: one column at a time
+            step = np.zeros_like(u)
+            step[:, j] = h
+            numeric[:, j] = (problem(u + step)[0] - problem(u - step)[0]) / (2 * h)
+        scale = np.abs(numeric).max(1, keepdims=True)
+        np.testing.assert_allclose(mine / scale, numeric / scale, rtol=0, atol=1e-7)

@@ -46,10 +46,10 @@ from ..fit import (
     _optimise,
     _Problem,
     check_equal_sizes,
-    torch_threads,
     world_part,
 )
 from ..preprocess import PlaneFit
+from ..threads import torch_threads
 
 __all__ = ["hidden_side_points", "refine_parts"]
 
@@ -170,42 +170,39 @@ def _optimise_rows(rows, segments, out, s, lo, hi, amodal, deformable, use_plane
     for b, r in enumerate(rows):
         Fpad[b, : len(r[8])] = r[8]
         Fw[b, : len(r[8])] = 1.0
-    f32 = torch.float32
     data = _Data(
-        torch.as_tensor(np.stack([r[7] for r in rows]), dtype=f32),
-        torch.as_tensor(Fpad, dtype=f32),
-        torch.as_tensor(Fw, dtype=f32),
-        torch.as_tensor([float(r[9]) for r in rows], dtype=f32),
+        np.stack([r[7] for r in rows]),
+        Fpad,
+        Fw,
+        np.array([r[9] for r in rows], dtype=bool),
         use_plane,
     )
     e0 = np.clip(np.stack([r[5] for r in rows]), E_LO + 1e-3, E_LO + E_SPAN - 1e-3)
     batch = _Batch(
-        torch.as_tensor(np.stack([r[2] for r in rows]), dtype=f32),
-        torch.as_tensor(np.stack([r[3] for r in rows]), dtype=f32),
-        torch.as_tensor(np.stack([r[4] for r in rows]), dtype=f32),
-        torch.as_tensor(e0, dtype=f32),
+        np.stack([r[2] for r in rows]),
+        np.stack([r[3] for r in rows]),
+        np.stack([r[4] for r in rows]),
+        e0,
         lo,
         hi,
         deformable,
     )
     k0 = np.clip(np.array([r[6] for r in rows]) / K_MAX, -0.999, 0.999)
-    batch.u[:, _K] = torch.as_tensor(np.arctanh(k0), dtype=f32)[:, None]
-    g = torch.Generator().manual_seed(seed)
-    data = data.subset(s.refine_points, s.refine_free_points, g)
+    batch.u[:, _K] = np.arctanh(k0)[:, None]
+    data = data.subset(s.refine_points, s.refine_free_points, np.random.default_rng([seed, 1]))
     problem = _Problem(batch, data, s, amodal)
     lr = s.hybrid_learning_rate
     _optimise(problem, s.hybrid_iterations, lr, lr * (1.0 - s.lr_decay))
-    with torch.no_grad():
-        loss, _ = problem(batch.u)
-        params, _, _ = batch.unpack()
-        R, t = batch.pose()
+    loss, _ = problem(batch.u)
+    params, _, _ = batch.unpack()
+    R, t = batch.pose()
     for b, r in enumerate(rows):
         i, frame = r[0], r[1]
         part = world_part(params[b], R[b], t[b], frame)
         # keep whichever of the refined and the network's part is closer to the observed plus
         # hidden-side points (exact radial distance, bending included): a bent network part
         # (the fitter has no bending) survives unless the unbent refinement fits better
-        refined = _residual(part, r[11]) if np.isfinite(params[b].numpy()).all() else math.inf
+        refined = _residual(part, r[11]) if np.isfinite(params[b]).all() else math.inf
         if not refined <= _residual(r[10], r[11]):
             part = r[10]
         pts = np.asarray(segments[i], dtype=np.float64)

@@ -26,7 +26,7 @@ import numpy as np
 from sqmanip.errors import PreconditionError
 from sqmanip.geometry import Superquadric
 
-from ..fit import torch_threads
+from ..threads import torch_threads
 from .infer import NetworkRecognizer, NetworkSegmenter
 
 __all__ = [
