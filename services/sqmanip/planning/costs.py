@@ -510,9 +510,22 @@ class GraspFeasibility:
             rule = dataclasses.replace(rule, max_width=gripper.max_opening)
         self.rule = rule
         self.cloud = GripperCloud.from_spec(gripper, spec.gripper_points)
+        self._last_candidates: tuple[bytes, Candidates] | None = None
 
     def candidates(self, parts: Sequence[Superquadric]) -> Candidates:
-        """Rule-based (B.5) plus edge candidates of one object, world frame, at most the cap."""
+        """Rule-based (B.5) plus edge candidates of one object, world frame, at most the cap.
+
+        The last object's candidates are kept: a planning step asks for the same target's up to
+        four times (current cost, terminal cost, earliest-success tie-break), ~40 ms each.
+        """
+        key = b"".join(np.asarray(p.params()).tobytes() + p.pose.tobytes() for p in parts)
+        if self._last_candidates is not None and self._last_candidates[0] == key:
+            return self._last_candidates[1]
+        cands = self._candidates(parts)
+        self._last_candidates = (key, cands)
+        return cands
+
+    def _candidates(self, parts: Sequence[Superquadric]) -> Candidates:
         cands = rule_based_candidates(parts, options=self.rule, dtype=torch.float64)
         if self.spec.edge_grasps:
             edge = edge_grasp_candidates(parts, self.rule)
@@ -531,6 +544,38 @@ class GraspFeasibility:
         current parts and move rigidly with it; the check against the target itself does not
         depend on the state and is done once.
         """
+        frames, ok = self._collision_free(scene, states, target)
+        s_idx, c_idx = ok.nonzero(as_tuple=True)
+        if s_idx.numel():
+            ok[s_idx, c_idx] = torch.as_tensor(self._reachable(frames[s_idx, c_idx]))
+        return ok
+
+    def any_feasible(self, scene: PackedScene, states: torch.Tensor, target: int) -> torch.Tensor:
+        """``(S,)`` bool: some candidate is feasible in state ``s``, which is all the 0/1 cost
+        of B.5.13 needs. Equals ``feasible(...).any(-1)``, but each state's IK stops at its first
+        reachable candidate: IK (per pose) is most of a grasping planning step."""
+        frames, ok = self._collision_free(scene, states, target)
+        out = torch.zeros(ok.shape[0], dtype=torch.bool)
+        for s in ok.any(-1).nonzero().squeeze(-1).tolist():
+            for c in ok[s].nonzero().squeeze(-1).tolist():
+                if self._reachable(frames[s, c][None])[0]:
+                    out[s] = True
+                    break
+        return out
+
+    def _reachable(self, frames: torch.Tensor) -> np.ndarray:
+        """Kinematic feasibility of ``frames (K, 4, 4)`` (last: IK is per pose)."""
+        poses = frames.numpy()
+        reach = np.asarray(self.reachability(poses), dtype=bool)
+        if reach.shape != (len(poses),):
+            raise ValueError(f"reachability must return shape ({len(poses)},), got {reach.shape}")
+        return reach
+
+    def _collision_free(
+        self, scene: PackedScene, states: torch.Tensor, target: int
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Candidate grasp frames ``(S, C, 4, 4)`` in each state and ``(S, C)`` bool: free of
+        the target, the table and the other objects (one batched call each)."""
         states = torch.as_tensor(states, dtype=torch.float64)
         if states.ndim != 4 or states.shape[1:] != (scene.n_objects, 4, 4):
             raise ValueError(
@@ -540,7 +585,7 @@ class GraspFeasibility:
         cands = self.candidates(scene.parts[target])
         C = len(cands)
         if C == 0 or S == 0:
-            return torch.zeros(S, C, dtype=torch.bool)
+            return torch.zeros(S, C, 4, 4, dtype=torch.float64), torch.zeros(S, C, dtype=torch.bool)
         local = se3_inverse(scene.poses[target]) @ cands.poses  # (C, 4, 4) in the target's frame
         frames = states[:, target, None] @ local  # (S, C, 4, 4) float64
         ok = torch.ones(S, C, dtype=torch.bool)
@@ -558,7 +603,7 @@ class GraspFeasibility:
         # table and the other objects, per predicted state (only still-feasible pairs)
         s_idx, c_idx = ok.nonzero(as_tuple=True)
         if s_idx.numel() == 0:
-            return ok
+            return frames, ok
         table_hit = table_contacts(
             frames[s_idx, c_idx][None], self.cloud, self.table, self.spec.table_clearance
         )[0]
@@ -568,14 +613,4 @@ class GraspFeasibility:
                 frames, self.cloud, scene.part_poses(states), scene, ~is_target, ok
             )
             ok &= ~(vals < 1.0).any(-1)
-        # kinematic feasibility last: IK is per pose, the checks above are one batched call each
-        s_idx, c_idx = ok.nonzero(as_tuple=True)
-        if s_idx.numel():
-            poses = frames[s_idx, c_idx].numpy()
-            reach = np.asarray(self.reachability(poses), dtype=bool)
-            if reach.shape != (len(poses),):
-                raise ValueError(
-                    f"reachability must return shape ({len(poses)},), got {reach.shape}"
-                )
-            ok[s_idx, c_idx] = torch.as_tensor(reach)
-        return ok
+        return frames, ok

@@ -313,8 +313,8 @@ class PlanResult:
 class PushMPC:
     """Sampling-based pushing MPC (B.4) over a pluggable dynamics model.
 
-    ``grasp_checker`` (grasping tasks) has ``feasible(scene, states (S, N, 4, 4), target) ->
-    (S, C) bool``; the default is :class:`~sqmanip.planning.costs.GraspFeasibility` with
+    ``grasp_checker`` (grasping tasks) has ``any_feasible(scene, states (S, N, 4, 4), target)
+    -> (S,) bool``; the default is :class:`~sqmanip.planning.costs.GraspFeasibility` with
     ``reachability`` (default: the workspace-radius stand-in of ``sqmanip.grasping`` around the
     simulator's Panda base; pass the Panda IK in the stack). ``sampler`` defaults to
     :class:`CandidateSampler` (the 4.5 sampler) over the table top with ``config.sampler``.
@@ -493,8 +493,8 @@ class PushMPC:
         t0 = time.perf_counter()
         task = ctx.task
         if isinstance(task, GraspingTask):
-            feas = self.grasp_checker.feasible(scene, states, ctx.target)
-            out = grasping_cost(feas)
+            feasible = self.grasp_checker.any_feasible(scene, states, ctx.target)
+            out = grasping_cost(feasible[:, None])
             timings["grasp"] += 1e3 * (time.perf_counter() - t0)
             return out
         if isinstance(task, MovingTask):

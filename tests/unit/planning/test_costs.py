@@ -148,6 +148,31 @@ def test_feasibility_moves_with_predicted_states():
     assert grasping_cost(checker().feasible(scene, states, 0)).tolist() == [1.0, 0.0]
 
 
+def test_any_feasible_equals_feasible_any_with_fewer_ik_calls():
+    """The MPC's early-stopping check agrees with the full matrix and asks the IK less."""
+    rng = np.random.default_rng(0)
+    target = box(0.45, 0.0, (0.05, 0.05, 0.10))
+    scene = PackedScene.from_objects([([target], 0), ([box(0.52, 0.0, (0.06, 0.06, 0.14))], 1)])
+    states = scene.poses[None].repeat(12, 1, 1, 1)
+    states[:, 1, :2, 3] += torch.as_tensor(rng.uniform(-0.04, 0.04, (12, 2)))  # the neighbour
+    calls = []
+
+    def reach_left_half(poses):  # a reachability that rejects some grasps, counting calls
+        calls.append(len(poses))
+        return poses[:, 1, 3] < 0.005
+
+    feas = GraspFeasibility(
+        reach_left_half, spec=GraspCostSpec(), gripper=PANDA_HAND, table=TableSpec()
+    )
+    full = feas.feasible(scene, states, 0)
+    n_full = sum(calls)
+    calls.clear()
+    some = feas.any_feasible(scene, states, 0)
+    assert torch.equal(some, full.any(-1))
+    assert some.any() and (~some).any()
+    assert sum(calls) < n_full
+
+
 def test_gripper_part_values_equals_dense_evaluation():
     gen = torch.Generator().manual_seed(0)
     scene = PackedScene.from_objects(
