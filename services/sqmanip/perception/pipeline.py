@@ -22,7 +22,7 @@ from .config import PerceptionSettings
 from .fit import fit_segments
 from .mvbb import mvbb_fit
 from .preprocess import crop_mask, fit_plane_ransac, resample
-from .segment import cluster, cluster_with_groups, segments_from_labels
+from .segment import chromaticity, cluster, cluster_with_groups, segments_from_labels
 from .threads import blas_threads
 from .types import RecognizedObject, RecognizeRequest, Scene
 from .validate import validate_request
@@ -51,23 +51,31 @@ def _group_parts(
     clusters: list[int],
     plane,
     contact: float,
+    colors: np.ndarray | None = None,
+    color_tolerance: float = 0.0,
 ) -> list[int]:
     """Object id per segment: a segment that does not reach the support plane is a part of the
     object it rests on (the largest segment cut from the same Euclidean cluster that does), so a
     bottle's neck or a mug's handle become parts of one object while touching objects, which
-    both stand on the plane, stay apart. Without a plane every segment is its own object."""
+    both stand on the plane, stay apart. With ``colors (N, 3)``, only segments of one colour
+    join (a can whose lower half a neighbour hides is not the neighbour's part). Without a
+    plane every segment is its own object."""
     groups = list(range(len(segments)))
     if plane is None:
         return groups
+    same = _same_colour(colors, segments, color_tolerance)
     heights = [plane.signed_distance(points[seg]) for seg in segments]
     grounded = [float(h.min()) <= contact for h in heights]
     anchored = list(grounded)
     for i, cl in enumerate(clusters):  # segments are sorted largest first
         if grounded[i]:
             continue
-        base = next((j for j, c in enumerate(clusters) if c == cl and grounded[j]), None)
+        base = next(
+            (j for j, c in enumerate(clusters) if c == cl and grounded[j] and same[i, j]), None
+        )
         if base is None:
             base = _stacked_base(points, segments, heights, contact, i)
+            base = base if base is not None and same[i, base] else None
         if base is not None:
             groups[i] = groups[base]
             anchored[i] = True
@@ -79,10 +87,31 @@ def _group_parts(
         for i, cl in enumerate(clusters):
             if anchored[i]:
                 continue
-            j = next((j for j, c in enumerate(clusters) if c == cl and anchored[j]), None)
+            j = next(
+                (j for j, c in enumerate(clusters) if c == cl and anchored[j] and same[i, j]), None
+            )
             if j is not None:
                 groups[i], anchored[i], changed = groups[j], True, True
     return groups
+
+
+def _same_colour(
+    colors: np.ndarray | None, segments: list[np.ndarray], tolerance: float
+) -> np.ndarray:
+    """``(S, S)`` bool: segments whose mean chromaticity (bright points) differ by at most
+    ``tolerance``; all True without colours or tolerance."""
+    n = len(segments)
+    if colors is None or tolerance <= 0 or n == 0:
+        return np.ones((n, n), dtype=bool)
+    chroma, bright = chromaticity(colors)
+    mean = np.array(
+        [
+            chroma[seg][bright[seg]].mean(0) if bright[seg].any() else np.full(3, np.nan)
+            for seg in segments
+        ]
+    )
+    d = np.linalg.norm(mean[:, None] - mean[None], axis=-1)
+    return ~(d > tolerance)  # NaN (a dark segment) compares as the same colour
 
 
 STACK_GAP = 0.03
@@ -217,8 +246,17 @@ class Recognizer:
         elif opt.segmentation == "network":
             local_segments, groups = self._network_segments(obj_pts, valid.viewpoint, opt.seed)
         else:
-            local_segments, clusters = cluster_with_groups(obj_pts, s, valid.viewpoint)
-            groups = _group_parts(obj_pts, local_segments, clusters, plane, s.part_contact)
+            obj_colors = None if valid.colors is None else valid.colors[object_idx]
+            local_segments, clusters = cluster_with_groups(obj_pts, s, valid.viewpoint, obj_colors)
+            groups = _group_parts(
+                obj_pts,
+                local_segments,
+                clusters,
+                plane,
+                s.part_contact,
+                obj_colors,
+                s.color_tolerance,
+            )
         segments = [object_idx[seg] for seg in local_segments]
         t_seg = time.perf_counter() - t0
 

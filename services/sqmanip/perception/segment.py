@@ -11,7 +11,9 @@ and the product is negative. Normals are smeared across the seam, so instead of 
 edges, nodes with at least two concave edges are removed as *seam* nodes; the remaining
 components (of at least ``min_cluster_points`` points) are seeds and every seam node or small
 fragment joins its nearest seed node. Coplanar flush faces (two
-boxes of equal height pushed together) have no concave seam and stay one segment.
+boxes of equal height pushed together) have no concave seam and stay one segment, unless
+colours are given and differ: an edge whose ends differ in chromaticity is cut like a concave
+one (objects of different colours that touch, the usual case in clutter).
 """
 
 from __future__ import annotations
@@ -52,17 +54,20 @@ def _split_concave(
     weight: np.ndarray,
     normals: np.ndarray,
     settings: PerceptionSettings,
+    colour_cut: np.ndarray,
 ) -> np.ndarray:
-    """Labels ``(M,)`` after removing seam nodes (>= 2 concave edges) and regrowing.
+    """Labels ``(M,)`` after removing seam nodes (>= 2 cut edges) and regrowing.
 
-    Components of the graph without seam nodes that weigh at least ``min_cluster_points``
-    points are seeds; every other node (seam, fragment) joins the seed of its nearest seed node.
+    An edge is cut where the surface is concave or where ``colour_cut`` (edges,) says the
+    colour changes. Components of the graph without seam nodes that weigh at least
+    ``min_cluster_points`` points are seeds; every other node (seam, fragment) joins the seed of
+    its nearest seed node.
     """
     d = x[edges[:, 0]] - x[edges[:, 1]]
     dn = normals[edges[:, 0]] - normals[edges[:, 1]]
     conv = (dn * d).sum(1) / np.linalg.norm(d, axis=1).clip(1e-12)
-    concave = conv < -settings.concavity_tolerance
-    seam = np.bincount(edges[concave].ravel(), minlength=len(x)) >= 2
+    cut = (conv < -settings.concavity_tolerance) | colour_cut
+    seam = np.bincount(edges[cut].ravel(), minlength=len(x)) >= 2
     keep = ~seam[edges[:, 0]] & ~seam[edges[:, 1]]
     lab = _components(len(x), edges[keep])
     w = np.bincount(lab, weights=weight * ~seam)
@@ -76,22 +81,44 @@ def _split_concave(
     return np.unique(lab, return_inverse=True)[1].reshape(-1)
 
 
+def chromaticity(colors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(r, g, b) / (r + g + b)`` of ``colors (N, 3)`` (blind to shading) and whether each is
+    bright enough (channel sum above ``DARK``) for its chromaticity to mean anything."""
+    total = np.asarray(colors, dtype=np.float64).sum(1, keepdims=True)
+    return colors / total.clip(1e-6), total[:, 0] > DARK
+
+
+def _colour_change(colors: np.ndarray, edges: np.ndarray, tolerance: float) -> np.ndarray:
+    """Edges whose (bright enough) ends differ in chromaticity by more than ``tolerance``."""
+    chroma, bright = chromaticity(colors)
+    a, b = edges[:, 0], edges[:, 1]
+    differ = np.linalg.norm(chroma[a] - chroma[b], axis=1) > tolerance
+    return differ & bright[a] & bright[b]
+
+
+DARK = 0.15
+"""Below this sum of the (0-1) channels a colour is too dark to compare."""
+
+
 def cluster(
     points: np.ndarray,
     settings: PerceptionSettings,
     viewpoint: np.ndarray | None = None,
+    colors: np.ndarray | None = None,
 ) -> list[np.ndarray]:
     """Segments of ``points (N, 3)`` as index arrays, largest first (see module docstring)."""
-    return cluster_with_groups(points, settings, viewpoint)[0]
+    return cluster_with_groups(points, settings, viewpoint, colors)[0]
 
 
 def cluster_with_groups(
     points: np.ndarray,
     settings: PerceptionSettings,
     viewpoint: np.ndarray | None = None,
+    colors: np.ndarray | None = None,
 ) -> tuple[list[np.ndarray], list[int]]:
     """:func:`cluster`, plus for each segment the id of the Euclidean cluster it was cut from
-    (segments split at a concave edge share it: the parts of one object, or touching objects)."""
+    (segments split at a concave edge or a colour change share it: the parts of one object, or
+    touching objects). ``colors (N, 3)`` in [0, 1], optional."""
     if len(points) == 0:
         return [], []
     rep, inverse = voxel_downsample(points, settings.cluster_voxel)
@@ -102,7 +129,17 @@ def cluster_with_groups(
     labels = euclidean = _components(len(x), edges)
     if settings.split_touching and len(edges) and len(x) >= 3:
         nrm = estimate_normals(x, settings.normal_neighbors, viewpoint, tree)
-        split = _split_concave(x, edges, weight, nrm, settings)
+        colour_cut = np.zeros(len(edges), dtype=bool)
+        if colors is not None and settings.color_tolerance > 0:
+            c = np.asarray(colors, dtype=np.float64)
+            voxel_colors = (
+                np.stack(  # mean colour of each voxel's points
+                    [np.bincount(inverse, weights=c[:, k], minlength=len(rep)) for k in range(3)], 1
+                )
+                / weight[:, None]
+            )
+            colour_cut = _colour_change(voxel_colors, edges, settings.color_tolerance)
+        split = _split_concave(x, edges, weight, nrm, settings, colour_cut)
         # never merge across Euclidean clusters: combine both labelings
         labels = np.unique(labels * (split.max() + 1) + split, return_inverse=True)[1].reshape(-1)
     point_labels = labels[inverse]

@@ -121,6 +121,7 @@ class PerceptionObjects:
         t0 = time.perf_counter()
         req = RecognizeRequest(
             points=np.asarray(obs.points, dtype=np.float32),
+            colors=obs.point_colors(),
             viewpoint=np.asarray(obs.camera_pose[:3, 3], dtype=np.float64),
             workspace=self.workspace,
             options=self.options,

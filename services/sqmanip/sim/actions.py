@@ -73,6 +73,10 @@ class Observation:
     objects: tuple[ObjectState, ...]
     time: float
 
+    def point_colors(self) -> np.ndarray:
+        """``(N, 3)`` float32 colours in [0, 1] of ``points`` (their pixels in ``rgb``)."""
+        return self.rgb.reshape(-1, 3)[self.point_pixels].astype(np.float32) / 255.0
+
 
 @dataclasses.dataclass(frozen=True)
 class ActionResult:

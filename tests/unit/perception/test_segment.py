@@ -46,6 +46,29 @@ def test_touching_objects_are_split_at_the_concave_seam():
     assert min(purity) > 0.95
 
 
+def test_flush_boxes_of_different_colours_are_split_and_one_colour_stays_whole():
+    """Two 6 cm boxes pushed together (one flat top, no concave seam) seen from above: one
+    segment without colours, two with (a red and a blue box, shaded differently per face)."""
+    rng = np.random.default_rng(2)
+    top = np.column_stack([rng.uniform(-0.06, 0.06, 8000), rng.uniform(-0.03, 0.03, 8000)])
+    top = np.column_stack([top, np.full(len(top), 0.06)])
+    side = np.column_stack(
+        [rng.uniform(-0.06, 0.06, 4000), np.full(4000, -0.03), rng.uniform(0.0, 0.06, 4000)]
+    )
+    pts = np.concatenate([top, side]) + rng.normal(scale=0.0005, size=(12000, 3))
+    left = pts[:, 0] < 0
+    shade = np.where(pts[:, 2] > 0.059, 1.0, 0.6)[:, None]  # lit top, darker side
+    colors = shade * np.where(left[:, None], [0.8, 0.1, 0.1], [0.15, 0.3, 0.7])
+    eye = np.array([0.0, -0.4, 0.6])
+    assert len(cluster(pts, PerceptionSettings(), eye)) == 1
+    segs = cluster(pts, PerceptionSettings(), eye, colors)
+    assert len(segs) == 2
+    purity = [np.bincount(left[s].astype(int)).max() / len(s) for s in segs]
+    assert min(purity) > 0.97
+    one_colour = np.full_like(colors, 0.5) * shade
+    assert len(cluster(pts, PerceptionSettings(), eye, one_colour)) == 1
+
+
 def test_segments_from_labels_ignores_background_and_tiny_labels():
     labels = np.array([-1, 0, 0, 2, 2, 2, -1, 5])
     segs = segments_from_labels(labels, min_points=2)
