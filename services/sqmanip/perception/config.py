@@ -43,6 +43,10 @@ class PerceptionSettings(BaseSettings):
     """Euclidean clustering radius (m): voxel representatives closer than this are connected."""
     min_cluster_points: int = Field(40, ge=1)
     """Clusters with fewer original points are dropped as clutter."""
+    fragment_points: int = Field(200, ge=0)
+    """With colours, a segment with fewer points than this joins the nearest larger segment of its
+    colour (within 5 cm) instead of becoming an object: a strip of a box seen through a gap
+    between its neighbours (0: never)."""
     split_touching: bool = True
     """Cut concave edges (local convexity of normals) to split objects that touch."""
     concavity_tolerance: float = Field(0.12, ge=0)

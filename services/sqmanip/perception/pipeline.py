@@ -15,6 +15,7 @@ import time
 
 import numpy as np
 import torch
+from scipy.spatial import cKDTree
 
 from sqmanip.geometry import radial_distance
 
@@ -112,6 +113,41 @@ def _same_colour(
     )
     d = np.linalg.norm(mean[:, None] - mean[None], axis=-1)
     return ~(d > tolerance)  # NaN (a dark segment) compares as the same colour
+
+
+FRAGMENT_GAP = 0.05
+"""Largest distance (m) from a small same-coloured segment to the segment it is a fragment of."""
+
+
+def _absorb_fragments(
+    points: np.ndarray,
+    segments: list[np.ndarray],
+    clusters: list[int],
+    colors: np.ndarray | None,
+    tolerance: float,
+    fragment_points: int,
+) -> tuple[list[np.ndarray], list[int]]:
+    """With colours, a segment of fewer than ``fragment_points`` points (a strip of a box's side
+    seen through a gap between its neighbours) is merged into the nearest larger segment of its
+    colour within ``FRAGMENT_GAP`` instead of becoming an object of its own."""
+    if colors is None or tolerance <= 0 or fragment_points <= 0:
+        return segments, clusters
+    same = _same_colour(colors, segments, tolerance)
+    big = [j for j, seg in enumerate(segments) if len(seg) >= fragment_points]
+    merged = {j: [segments[j]] for j in range(len(segments))}
+    for i, seg in enumerate(segments):
+        if len(seg) >= fragment_points:
+            continue
+        gaps = {
+            j: float(cKDTree(points[segments[j]]).query(points[seg])[0].min())
+            for j in big
+            if same[i, j]
+        }
+        if gaps and min(gaps.values()) <= FRAGMENT_GAP:
+            merged[min(gaps, key=gaps.get)].append(seg)
+            del merged[i]
+    keep = sorted(merged)
+    return [np.concatenate(merged[j]) for j in keep], [clusters[j] for j in keep]
 
 
 STACK_GAP = 0.03
@@ -248,6 +284,9 @@ class Recognizer:
         else:
             obj_colors = None if valid.colors is None else valid.colors[object_idx]
             local_segments, clusters = cluster_with_groups(obj_pts, s, valid.viewpoint, obj_colors)
+            local_segments, clusters = _absorb_fragments(
+                obj_pts, local_segments, clusters, obj_colors, s.color_tolerance, s.fragment_points
+            )
             groups = _group_parts(
                 obj_pts,
                 local_segments,

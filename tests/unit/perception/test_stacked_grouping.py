@@ -39,3 +39,25 @@ def test_objects_side_by_side_and_far_floating_segments_stay_apart():
     segs = [np.arange(0, 200), np.arange(200, 400), np.arange(400, 600)]
     groups = _group_parts(pts, segs, [0, 1, 2], LevelPlane(), contact=0.01)
     assert len(set(groups)) == 3
+
+
+def test_a_small_fragment_joins_the_nearby_segment_of_its_colour_only():
+    """A strip of a red box seen through a gap (60 points, 3 cm away) joins the red box; a blue
+    strip, or one 10 cm away, stays its own segment."""
+    from sqmanip.perception.pipeline import _absorb_fragments
+
+    rng = np.random.default_rng(0)
+    box = rng.uniform([0.0, 0.0, 0.0], [0.1, 0.05, 0.03], (2000, 3))
+    near = rng.uniform([0.13, 0.0, 0.0], [0.14, 0.05, 0.01], (60, 3))
+    far = rng.uniform([0.20, 0.0, 0.0], [0.21, 0.05, 0.01], (60, 3))
+    pts = np.concatenate([box, near, far])
+    segs = [np.arange(2000), np.arange(2000, 2060), np.arange(2060, 2120)]
+    red, blue = [0.8, 0.1, 0.1], [0.1, 0.2, 0.8]
+    colours = np.array([red] * 2120)
+    merged, clusters = _absorb_fragments(pts, segs, [0, 1, 2], colours, 0.06, 200)
+    assert [len(s) for s in merged] == [2060, 60] and clusters == [0, 2]
+    colours[2000:2060] = blue
+    kept, _ = _absorb_fragments(pts, segs, [0, 1, 2], colours, 0.06, 200)
+    assert [len(s) for s in kept] == [2000, 60, 60]
+    unchanged, _ = _absorb_fragments(pts, segs, [0, 1, 2], None, 0.06, 200)
+    assert unchanged is segs
