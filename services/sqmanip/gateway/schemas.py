@@ -37,8 +37,11 @@ class RecognizeOptionsIn(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     method: Literal["optimization", "network", "hybrid", "mvbb"] = "optimization"
-    segmentation: Literal["clustering", "labels", "network"] | None = Field(
-        None, description="Default: 'labels' when labels are sent, else 'clustering'."
+    segmentation: Literal["clustering", "color", "labels", "network"] | None = Field(
+        None,
+        description="Default: 'labels' when labels are sent, else 'clustering'. 'color': "
+        "clustering that also separates touching objects of different colours (uniformly "
+        "coloured objects; needs colors).",
     )
     points_per_segment: UInt32 = Field(
         300, ge=1, description="Resampled points per segment (3.5.3)."

@@ -51,10 +51,12 @@ class PerceptionSettings(BaseSettings):
     """Cut concave edges (local convexity of normals) to split objects that touch."""
     concavity_tolerance: float = Field(0.12, ge=0)
     """An edge is concave if ``(n_i - n_j) . (x_i - x_j) / |x_i - x_j| < -tolerance``."""
-    color_tolerance: float = Field(0.06, ge=0)
-    """With colours, neighbours whose chromaticity ``(r, g, b) / (r + g + b)`` differs by more
-    than this are cut apart like a concave edge (touching objects of different colours); 0
-    ignores colours. Chromaticity ignores shading: within one simulated object it varies by
+    color_tolerance: float = Field(0.06, gt=0)
+    """``segmentation='color'``: neighbours whose chromaticity ``(r, g, b) / (r + g + b)``
+    differs by more than this are cut apart like a concave edge, and segments of different
+    colours are never parts of one object (touching objects of different colours). A mode of
+    its own because a real object's printed label would split it; for uniformly coloured
+    objects, such as the simulator's. Chromaticity ignores shading: within one simulated object it varies by
     ~0.002, between the clutter objects of the MPC benchmark by 0.02-0.75."""
     normal_neighbors: int = Field(10, ge=3)
     part_contact: float = Field(0.01, ge=0)

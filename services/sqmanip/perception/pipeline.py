@@ -282,7 +282,7 @@ class Recognizer:
         elif opt.segmentation == "network":
             local_segments, groups = self._network_segments(obj_pts, valid.viewpoint, opt.seed)
         else:
-            obj_colors = None if valid.colors is None else valid.colors[object_idx]
+            obj_colors = valid.colors[object_idx] if opt.segmentation == "color" else None
             local_segments, clusters = cluster_with_groups(obj_pts, s, valid.viewpoint, obj_colors)
             local_segments, clusters = _absorb_fragments(
                 obj_pts, local_segments, clusters, obj_colors, s.color_tolerance, s.fragment_points

@@ -14,7 +14,7 @@ import numpy as np
 from sqmanip.geometry import Superquadric
 
 Method = Literal["optimization", "network", "hybrid", "mvbb"]
-Segmentation = Literal["clustering", "labels", "network"]
+Segmentation = Literal["clustering", "color", "labels", "network"]
 
 
 @dataclasses.dataclass(frozen=True)

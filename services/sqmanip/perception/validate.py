@@ -130,6 +130,8 @@ def validate_request(request: RecognizeRequest, settings: PerceptionSettings) ->
             f"options.segmentation: expected one of {list(get_args(Segmentation))}, "
             f"got {opt.segmentation!r}"
         )
+    if opt.segmentation == "color" and colors is None:
+        raise ValidationError("colors: expected per-point colors when options.segmentation='color'")
     if opt.segmentation == "labels" and labels is None:
         raise ValidationError(
             "labels: expected per-point labels when options.segmentation='labels'"

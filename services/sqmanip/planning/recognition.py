@@ -107,7 +107,8 @@ class PerceptionObjects:
             recognizer = Recognizer()
         self.recognizer = recognizer
         self.camera = camera
-        self.options = options or RecognizeOptions(deformable=False)
+        # the simulator's objects are uniformly coloured: colour separates touching ones
+        self.options = options or RecognizeOptions(deformable=False, segmentation="color")
         lo, hi = table.lo, table.hi
         self.workspace = Workspace(
             (float(lo[0]), float(lo[1]), table.height - 0.02),

@@ -109,3 +109,35 @@ def test_a_part_resting_on_another_segment_joins_its_object():
     scene = Recognizer().recognize(RecognizeRequest(cloud, viewpoint=eye))
     by_parts = sorted(len(o.parts) for o in scene.objects)
     assert by_parts == [1, 2], [(len(o.parts), len(o.point_indices)) for o in scene.objects]
+
+
+def test_color_segmentation_separates_flush_boxes_that_clustering_merges():
+    """Two boxes of equal height pushed together, red and blue: one object by geometry alone
+    (their tops are one plane, no concave seam), two with segmentation='color'."""
+    from sqmanip.geometry import Superquadric, sample_parts
+
+    def at(x):
+        pose = np.eye(4)
+        pose[:3, 3] = (x, 0.0, 0.04)
+        return pose
+
+    boxes = [Superquadric((0.04, 0.03, 0.04), (0.1, 0.1), at(x)) for x in (-0.04, 0.04)]
+    eye = np.array([0.0, -0.5, 0.6])
+    pts, nrm, part = sample_parts(boxes, 8000, generator=0)
+    pts, nrm, part = np.asarray(pts), np.asarray(nrm), np.asarray(part)
+    seen = (((eye - pts) * nrm).sum(-1) > 0) & (np.abs(pts[:, 0]) > 0.001)  # no inner faces
+    xy = np.random.default_rng(0).uniform(-0.3, 0.3, size=(4000, 2))
+    table = np.column_stack([xy, np.zeros(len(xy))])
+    table = table[(np.abs(table[:, 0]) > 0.08) | (np.abs(table[:, 1]) > 0.03)]
+    cloud = np.concatenate([pts[seen], table]).astype(np.float32)
+    red, blue = np.array([0.8, 0.1, 0.1]), np.array([0.15, 0.3, 0.7])
+    shade = np.where(nrm[seen][:, 2] > 0.5, 1.0, 0.6)[:, None]  # lit tops, darker sides
+    colors = np.concatenate(
+        [shade * np.where((part[seen] == 0)[:, None], red, blue), np.full((len(table), 3), 0.6)]
+    ).astype(np.float32)
+    counts = {}
+    for seg in ("clustering", "color"):
+        opts = RecognizeOptions(segmentation=seg)
+        req = RecognizeRequest(cloud, colors=colors, viewpoint=eye, options=opts)
+        counts[seg] = len(Recognizer().recognize(req).objects)
+    assert counts == {"clustering": 1, "color": 2}

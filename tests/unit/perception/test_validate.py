@@ -73,3 +73,4 @@ def test_bad_colors_labels_viewpoint_workspace_options():
         options=RecognizeOptions(points_per_segment=4),
     )
     _check(r"labels: expected per-point labels", options=RecognizeOptions(segmentation="labels"))
+    _check(r"colors: expected per-point colors", options=RecognizeOptions(segmentation="color"))

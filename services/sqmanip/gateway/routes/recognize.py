@@ -127,7 +127,7 @@ async def recognize(
     perception: PerceptionDep,
     settings: SettingsDep,
     method: Literal["optimization", "network", "hybrid", "mvbb"] = "optimization",
-    segmentation: Literal["clustering", "labels", "network"] | None = None,
+    segmentation: Literal["clustering", "color", "labels", "network"] | None = None,
     points_per_segment: int = Query(300, ge=1, le=2**32 - 1),
     remove_support: bool = True,
     amodal: bool = True,
