@@ -15,6 +15,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 from sqmanip.geometry import Superquadric
 from sqmanip.geometry.transforms import matrix_to_quat
 from sqmanip.perception.types import RecognizedObject, RecognizeOptions, Scene
+from sqmanip.rpc.convert import split_by_counts
 from sqmanip.sim.actions import ActionResult, ObjectState, Observation, SimState
 
 Vec3 = tuple[float, float, float]
@@ -165,9 +166,8 @@ def _object(obj: RecognizedObject, parts: list[PartOut]) -> ObjectOut:
 
 
 def scene_to_response(scene: Scene) -> RecognizeResponse:
-    flat = _parts([p for o in scene.objects for p in o.parts])
-    ends = np.cumsum([len(o.parts) for o in scene.objects]).tolist()
-    parts = [flat[e - len(o.parts) : e] for o, e in zip(scene.objects, ends, strict=True)]
+    counts = [len(o.parts) for o in scene.objects]
+    parts = split_by_counts(_parts([p for o in scene.objects for p in o.parts]), counts)
     plane = scene.support_plane
     return RecognizeResponse(
         objects=[_object(o, p) for o, p in zip(scene.objects, parts, strict=True)],

@@ -44,7 +44,7 @@ import dataclasses
 import math
 
 import numpy as np
-from scipy.special import expit
+from scipy.special import expit, logit
 
 from sqmanip.geometry import Superquadric
 from sqmanip.geometry.deform import TAPER_MIN
@@ -343,10 +343,6 @@ def _so3_exp(w: np.ndarray):
     return E, vjp
 
 
-def _logit(p: np.ndarray) -> np.ndarray:
-    return np.log(p / (1.0 - p))
-
-
 class _Batch:
     """``B`` problems: fixed initial rotations ``R0``, translations ``t0`` (local frame) and one
     unconstrained variable ``u (B, 12) = [u_a, u_e, u_k, w, u_t]`` mapped to parameters by
@@ -365,8 +361,8 @@ class _Batch:
         self.log_lo, self.log_span = math.log(lo), math.log(hi) - math.log(lo)
         frac = (np.log(np.clip(a0, lo * 1.01, hi * 0.99)) - self.log_lo) / self.log_span
         u = np.zeros((B, 12))
-        u[:, _A] = _logit(frac)
-        u[:, _E] = _logit((e0 - E_LO) / E_SPAN)
+        u[:, _A] = logit(frac)
+        u[:, _E] = logit((e0 - E_LO) / E_SPAN)
         self.u = u
         self.deformable = deformable
         self.k_mask = 1.0 if deformable else 0.0

@@ -100,9 +100,9 @@ def _same_colour(
     colors: np.ndarray | None, segments: list[np.ndarray], tolerance: float
 ) -> np.ndarray:
     """``(S, S)`` bool: segments whose mean chromaticity (bright points) differ by at most
-    ``tolerance``; all True without colours or tolerance."""
+    ``tolerance``; all True without colours."""
     n = len(segments)
-    if colors is None or tolerance <= 0 or n == 0:
+    if colors is None or n == 0:
         return np.ones((n, n), dtype=bool)
     chroma, bright = chromaticity(colors)
     mean = np.array(
@@ -130,7 +130,7 @@ def _absorb_fragments(
     """With colours, a segment of fewer than ``fragment_points`` points (a strip of a box's side
     seen through a gap between its neighbours) is merged into the nearest larger segment of its
     colour within ``FRAGMENT_GAP`` instead of becoming an object of its own."""
-    if colors is None or tolerance <= 0 or fragment_points <= 0:
+    if colors is None or fragment_points <= 0:
         return segments, clusters
     same = _same_colour(colors, segments, tolerance)
     big = [j for j, seg in enumerate(segments) if len(seg) >= fragment_points]

@@ -84,8 +84,9 @@ def _split_concave(
 def chromaticity(colors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(r, g, b) / (r + g + b)`` of ``colors (N, 3)`` (blind to shading) and whether each is
     bright enough (channel sum above ``DARK``) for its chromaticity to mean anything."""
-    total = np.asarray(colors, dtype=np.float64).sum(1, keepdims=True)
-    return colors / total.clip(1e-6), total[:, 0] > DARK
+    c = np.asarray(colors, dtype=np.float64)
+    total = c.sum(1, keepdims=True)
+    return c / total.clip(1e-6), total[:, 0] > DARK
 
 
 def _colour_change(colors: np.ndarray, edges: np.ndarray, tolerance: float) -> np.ndarray:
@@ -130,7 +131,7 @@ def cluster_with_groups(
     if settings.split_touching and len(edges) and len(x) >= 3:
         nrm = estimate_normals(x, settings.normal_neighbors, viewpoint, tree)
         colour_cut = np.zeros(len(edges), dtype=bool)
-        if colors is not None and settings.color_tolerance > 0:
+        if colors is not None:
             c = np.asarray(colors, dtype=np.float64)
             voxel_colors = (
                 np.stack(  # mean colour of each voxel's points

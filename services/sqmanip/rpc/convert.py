@@ -438,7 +438,8 @@ def recognized_object_from_proto(
     )
 
 
-def _split(items: list, counts: list[int]) -> list[list]:
+def split_by_counts(items: list, counts: list[int]) -> list[list]:
+    """``items`` cut into consecutive runs of ``counts`` (a flat batch back per owner)."""
     ends = np.cumsum(counts).tolist()
     return [items[e - n : e] for n, e in zip(counts, ends, strict=True)]
 
@@ -453,7 +454,9 @@ def support_plane_from_proto(msg: pb.SupportPlane) -> SupportPlane:
 
 def scene_to_proto(scene: Scene) -> pb.Scene:
     counts = [len(o.parts) for o in scene.objects]
-    parts = _split(superquadrics_to_proto([p for o in scene.objects for p in o.parts]), counts)
+    parts = split_by_counts(
+        superquadrics_to_proto([p for o in scene.objects for p in o.parts]), counts
+    )
     msg = pb.Scene(
         objects=[
             recognized_object_to_proto(o, p) for o, p in zip(scene.objects, parts, strict=True)
@@ -469,7 +472,9 @@ def scene_to_proto(scene: Scene) -> pb.Scene:
 
 def scene_from_proto(msg: pb.Scene) -> Scene:
     counts = [len(o.parts) for o in msg.objects]
-    parts = _split(superquadrics_from_proto([p for o in msg.objects for p in o.parts]), counts)
+    parts = split_by_counts(
+        superquadrics_from_proto([p for o in msg.objects for p in o.parts]), counts
+    )
     return Scene(
         objects=[
             recognized_object_from_proto(o, p) for o, p in zip(msg.objects, parts, strict=True)

@@ -81,11 +81,6 @@ def hidden_side_points(
     return world[keep]
 
 
-def _logit(x: np.ndarray | float, eps: float = 1e-4):
-    x = np.clip(x, eps, 1 - eps)
-    return np.log(x / (1 - x))
-
-
 def refine_parts(
     segments: Sequence[np.ndarray],
     network_parts: Sequence[Superquadric],
