@@ -25,7 +25,7 @@ from .config import GatewaySettings
 from .errors import HTTPError
 
 
-def get_settings(request: Request) -> GatewaySettings:
+async def get_settings(request: Request) -> GatewaySettings:
     return request.app.state.settings
 
 
@@ -37,27 +37,27 @@ def channel_for(request: Request, service: str) -> grpc.aio.Channel:
     return channels[service]
 
 
-def get_perception(request: Request) -> perception_pb2_grpc.PerceptionStub:
+async def get_perception(request: Request) -> perception_pb2_grpc.PerceptionStub:
     return perception_pb2_grpc.PerceptionStub(channel_for(request, "perception"))
 
 
-def get_sim(request: Request) -> sim_pb2_grpc.SimulatorStub:
+async def get_sim(request: Request) -> sim_pb2_grpc.SimulatorStub:
     return sim_pb2_grpc.SimulatorStub(channel_for(request, "sim"))
 
 
-def get_grasp(request: Request) -> grasp_pb2_grpc.GraspPlannerStub:
+async def get_grasp(request: Request) -> grasp_pb2_grpc.GraspPlannerStub:
     return grasp_pb2_grpc.GraspPlannerStub(channel_for(request, "grasp"))
 
 
-def get_dynamics(request: Request) -> dynamics_pb2_grpc.DynamicsStub:
+async def get_dynamics(request: Request) -> dynamics_pb2_grpc.DynamicsStub:
     return dynamics_pb2_grpc.DynamicsStub(channel_for(request, "dynamics"))
 
 
-def get_planner(request: Request) -> planner_pb2_grpc.PlannerStub:
+async def get_planner(request: Request) -> planner_pb2_grpc.PlannerStub:
     return planner_pb2_grpc.PlannerStub(channel_for(request, "mpc"))
 
 
-def get_search(request: Request) -> search_pb2_grpc.SearchStub:
+async def get_search(request: Request) -> search_pb2_grpc.SearchStub:
     return search_pb2_grpc.SearchStub(channel_for(request, "search"))
 
 

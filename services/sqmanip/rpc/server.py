@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import ctypes
 import dataclasses
 import logging
 import signal
@@ -129,6 +130,28 @@ def service_parser(name: str, module: str, description: str | None) -> argparse.
     return parser
 
 
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3  # glibc's mallopt parameters (malloc.h)
+
+
+def retain_freed_memory(trim_bytes: int = 256 << 20, mmap_bytes: int = 32 << 20) -> bool:
+    """Tell glibc's malloc to keep freed memory mapped instead of handing it back to the OS.
+
+    A request allocates and frees the same large arrays every time. By default glibc unmaps
+    them (or trims the heap of the worker thread's arena) after each request, so the next one
+    page-faults all of it back in: about 1,700 faults and +4.5 ms (+55 % of preprocessing) per
+    40,000-point /recognize, which an in-process caller never pays. Keeps up to ``trim_bytes``
+    of free heap; arrays above ``mmap_bytes`` are still mapped and unmapped on their own.
+    Returns False where the C library has no ``mallopt`` (not glibc): nothing to tune there.
+    """
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):
+        return False
+    return bool(mallopt(_M_TRIM_THRESHOLD, trim_bytes)) and bool(
+        mallopt(_M_MMAP_THRESHOLD, mmap_bytes)
+    )
+
+
 def run_service(
     servicer,
     register: Register,
@@ -144,6 +167,7 @@ def run_service(
     :class:`sqmanip.streams.Publisher`) connects once the server is up, after any fork, and is
     closed on the way out."""
     port = settings.port(name) if port is None else port
+    retain_freed_memory()
     on_started = None if publisher is None else (lambda _running: publisher.open(settings))
     try:
         asyncio.run(

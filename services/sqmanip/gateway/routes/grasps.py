@@ -53,7 +53,7 @@ async def _recognize(request: Request, body: GraspsBody, settings) -> tuple[Scen
     """Send the body's cloud to perception; returns the scene and the points."""
     from ..deps import get_perception
 
-    perception = get_perception(request)
+    perception = await get_perception(request)
     points = convert._as_points(body.points, "points")
     req = RecognizeRequest(
         points=points,
