@@ -3,7 +3,7 @@
 Defaults follow the thesis: 100 action sequences (B.4), horizon 1 for moving, singulation and
 interactive moving and 3 for grasping (B.4, 4.7.3), ``n_gr = 512`` gripper points and at most 30
 rule-based grasp candidates of width <= 7 cm (B.5), the 0.512 x 0.512 x 0.192 m workspace of
-4.5. The table is the simulator's (``sqmanip.sim.config``: 0.80 x 1.00 x 0.05 m, top face at
+4.5. The table is the simulator's (``sqmanip.sim.config``: 0.80 x 0.80 x 0.05 m, top face at
 ``z = 0``, centred 0.10 m beyond the workspace centre at ``(0.55, 0)``); the numbers are repeated here rather
 than imported so that planning does not import PyBullet through ``sqmanip.sim``.
 """
@@ -40,7 +40,7 @@ class TableSpec:
 
     center: tuple[float, float] = (0.55, 0.0)
     """Table centre in the world x-y plane (m)."""
-    size: tuple[float, float] = (0.80, 1.00)
+    size: tuple[float, float] = (0.80, 0.80)
     """Table extent along world x and y (m)."""
     height: float = 0.0
     """World z of the table top (m)."""
@@ -135,8 +135,22 @@ class GraspCostSpec:
     """Gripper points closer than this above the table top count as touching it (m)."""
     check_target: bool = True
     """Reject candidates whose open gripper penetrates the target itself."""
+    approach_distance: float = 0.10
+    """The hand at the pre-grasp pose, this far back along the approach axis, must clear the table
+    and the robot mount too: ``Simulator.grasp`` refuses a pre-grasp configuration in collision, and
+    an edge grasp held low at the table's near side backs its hand into the pedestal."""
+    mount: TableSpec | None = dataclasses.field(
+        default_factory=lambda: TableSpec(
+            center=(0.0, 0.0), size=(0.24, 0.24), height=0.10, thickness=0.10
+        )
+    )
+    """The box the robot stands on (the simulator's pedestal under ``ROBOT_BASE``); None: no mount."""
 
     def __post_init__(self) -> None:
+        if not math.isfinite(self.approach_distance) or self.approach_distance < 0:
+            raise ValidationError(
+                f"grasp.approach_distance must be finite and >= 0, got {self.approach_distance!r}"
+            )
         if not isinstance(self.max_candidates, int) or self.max_candidates < 1:
             raise ValidationError(
                 f"grasp.max_candidates must be an integer >= 1, got {self.max_candidates!r}"

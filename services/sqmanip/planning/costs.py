@@ -563,6 +563,18 @@ class GraspFeasibility:
                     break
         return out
 
+    def static_collisions(self, frames: torch.Tensor) -> torch.Tensor:
+        """``(Q,)`` bool: the hand at ``frames (Q, 4, 4)`` or at its pre-grasp pose touches the
+        table or the robot mount."""
+        back = torch.eye(4, dtype=frames.dtype)
+        back[2, 3] = -self.spec.approach_distance
+        both = torch.stack([frames, frames @ back])  # (2, Q, 4, 4)
+        clearance = self.spec.table_clearance
+        hit = table_contacts(both, self.cloud, self.table, clearance).any(0)
+        if self.spec.mount is not None:
+            hit |= table_contacts(both, self.cloud, self.spec.mount, clearance).any(0)
+        return hit
+
     def _reachable(self, frames: torch.Tensor) -> np.ndarray:
         """Kinematic feasibility of ``frames (K, 4, 4)`` (last: IK is per pose)."""
         poses = frames.numpy()
@@ -604,10 +616,7 @@ class GraspFeasibility:
         s_idx, c_idx = ok.nonzero(as_tuple=True)
         if s_idx.numel() == 0:
             return frames, ok
-        table_hit = table_contacts(
-            frames[s_idx, c_idx][None], self.cloud, self.table, self.spec.table_clearance
-        )[0]
-        ok[s_idx, c_idx] = ~table_hit
+        ok[s_idx, c_idx] = ~self.static_collisions(frames[s_idx, c_idx])
         if scene.n_objects > 1 and bool(ok.any()):
             vals = gripper_part_values(
                 frames, self.cloud, scene.part_poses(states), scene, ~is_target, ok

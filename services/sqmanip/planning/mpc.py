@@ -352,13 +352,29 @@ class PushMPC:
         task: Task,
         rng: np.random.Generator | int | None = None,
     ) -> PlanResult:
-        """One MPC step: the push to execute now for ``task`` on ``objects`` ``[(parts, id)]``."""
-        t_start = time.perf_counter()
-        cfg = self.config
+        """One MPC step: the push to execute now for ``task`` on ``objects`` ``[(parts, id)]``.
+
+        When no sequence of the task's horizon is admissible (near the table's edge nearly every
+        3-push sequence carries an object off it), single pushes are planned instead: an
+        admissible first push still beats giving up the episode.
+        """
         rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
         scene = PackedScene.from_objects(objects)
-        validate_task(task, scene.ids, cfg.table)
-        H = cfg.horizon or task.default_horizon
+        validate_task(task, scene.ids, self.config.table)
+        H = self.config.horizon or task.default_horizon
+        result = self._plan(scene, task, rng, H)
+        if result.action is None and H > 1 and result.n_rejected_workspace > 0:
+            log.debug(
+                "plan %s: no admissible %d-push sequence, planning single pushes", task.name, H
+            )
+            spent = result.timings_ms["total"]
+            result = self._plan(scene, task, rng, 1)
+            result.timings_ms["total"] += spent  # the step's latency includes the first try
+        return result
+
+    def _plan(self, scene: PackedScene, task: Task, rng: np.random.Generator, H: int) -> PlanResult:
+        t_start = time.perf_counter()
+        cfg = self.config
         K = cfg.n_sequences
         N = scene.n_objects
         ctx = _TaskContext.build(task, scene)

@@ -3,7 +3,8 @@
 Two sources of object shapes, the rows of Table 4.6:
 
 - :class:`PerceptionObjects` ("R-SQPD-Net", "PyBullet w/ Recog."): render the wrist camera at
-  the home pose (0.72 m above the workspace, looking down), crop the cloud to the table, and run
+  the home pose (0.72 m above the workspace, looking down), crop the cloud to the space above
+  the table (and up to 15 cm past its far and side edges, where a pushed object overhangs), and run
   the training-free recognizer (:class:`~sqmanip.perception.pipeline.Recognizer`: RANSAC table,
   clustering, superquadric fitting with amodal completion). Object identities are *not* taken from
   the simulator's segmentation; they come from :class:`ObjectTracker`;
@@ -16,8 +17,10 @@ each step, recognized centres are matched one-to-one to the tracked objects' *ex
 expected centres start at the scenario's initial object positions (a task names "the object
 standing at ...") and after each push become the planner's *predicted* positions of the tracked
 objects (so a pushed object is looked for where the model said it would go, not where it was).
-Tracked objects that are not recognized keep their last expectation; recognized objects left
-unmatched get fresh ids from 1000 up and are tracked from then on. Recognized and true centres
+When exactly one tracked object is unmatched and exactly one recognized object is left over, they
+are paired by elimination up to three gates apart (a push carried the object farther than the
+model said). Tracked objects that are not recognized keep their last expectation; recognized
+objects left unmatched get fresh ids from 1000 up and are tracked from then on. Recognized and true centres
 differ by the recognition error (an upright box seen from above is fitted around its visible
 part), which the 10 cm default gate absorbs.
 """
@@ -32,6 +35,7 @@ import numpy as np
 
 from sqmanip.geometry import Superquadric
 from sqmanip.perception.types import RecognizeOptions, RecognizeRequest, Workspace
+from sqmanip.sim.camera import Intrinsics
 
 from .config import TableSpec
 
@@ -43,7 +47,15 @@ __all__ = [
     "object_centre",
 ]
 
+OVERVIEW = Intrinsics(fx=380.0, fy=380.0)
+"""The planner's observation: 640 x 576 with a wider lens than the default (fx 504), so that
+from the home pose (0.72 m up) it sees 0.61 m either side of the workspace centre in y, past the
+table's side edges (0.40 m), where a box pushed over the edge overhangs."""
+
 FIRST_NEW_ID = 1000
+ELIMINATION_GATES = 3.0
+"""A single unseen tracked object takes the single unmatched recognized object up to this many
+gates away (a push moved it farther than the model predicted)."""
 """Ids given to recognized objects that match no tracked object."""
 
 
@@ -98,8 +110,10 @@ class PerceptionObjects:
         *,
         table: TableSpec,
         camera: str = "wrist",
+        intrinsics: Intrinsics = OVERVIEW,
         options: RecognizeOptions | None = None,
         crop_height: float = 0.25,
+        crop_overhang: float = 0.15,
     ) -> None:
         if recognizer is None:
             from sqmanip.perception.pipeline import Recognizer
@@ -107,9 +121,13 @@ class PerceptionObjects:
             recognizer = Recognizer()
         self.recognizer = recognizer
         self.camera = camera
+        self.intrinsics = intrinsics
         # the simulator's objects are uniformly coloured: colour separates touching ones
         self.options = options or RecognizeOptions(deformable=False, segmentation="color")
-        lo, hi = table.lo, table.hi
+        # past the table's edges too (not the robot's side: its pedestal stands there): a box
+        # pushed over the edge keeps its overhanging part, the part an edge grasp holds
+        lo = table.lo - np.array([0.0, crop_overhang])
+        hi = table.hi + crop_overhang
         self.workspace = Workspace(
             (float(lo[0]), float(lo[1]), table.height - 0.02),
             (float(hi[0]), float(hi[1]), table.height + crop_height),
@@ -117,7 +135,7 @@ class PerceptionObjects:
 
     def __call__(self, sim) -> Recognition:
         t0 = time.perf_counter()
-        obs = sim.observe(self.camera)
+        obs = sim.observe(self.camera, intrinsics=self.intrinsics)
         t_obs = _ms(t0)
         t0 = time.perf_counter()
         req = RecognizeRequest(
@@ -167,6 +185,14 @@ class ObjectTracker:
             for r, c in zip(rows, cols, strict=True):
                 if d[r, c] <= self.gate:
                     assigned[int(r)] = ids[int(c)]
+            # by elimination: one tracked object unseen and one recognized object unmatched are
+            # the same object, moved farther than predicted (up to ELIMINATION_GATES gates)
+            lost = [c for c in range(len(ids)) if ids[c] not in assigned.values()]
+            new = [r for r in range(len(objects)) if r not in assigned]
+            if len(lost) == 1 and len(new) == 1:
+                r, c = new[0], lost[0]
+                if d[r, c] <= ELIMINATION_GATES * self.gate:
+                    assigned[r] = ids[c]
         for r, (parts, _) in enumerate(objects):
             oid = assigned.get(r)
             if oid is None:

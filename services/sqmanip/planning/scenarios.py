@@ -12,11 +12,10 @@ no sizes, so the sizes below are the YCB objects' published dimensions, rounded 
 - ``large_flat_box`` for "grasping large": 34 x 13 x 5 cm lying flat (a cereal-box-like object).
   Both footprint sides exceed the 8 cm opening (and the 7 cm rule of B.5), so it is graspable
   only across its 5 cm height where it overhangs the table edge. YCB has no box this long; the
-  length is chosen so that pushes, whose start and end must lie in the simulator's push
-  workspace (``|y| <= 0.256``), can carry it over the table's y edge (``|y| = 0.5``): the
-  largest reachable centre is about ``0.256 + tip + 0.17 = 0.45`` m, and the Panda IK accepts an
-  edge grasp from a centre at ``|y| ~ 0.40`` (7 cm overhang) on; with a 30 cm box (checked) no
-  reachable push makes it graspable.
+  length lets pushes, whose start and end must lie in the simulator's push workspace
+  (``|y| <= 0.256``), carry it over the table's y edge (``|y| = 0.40``): it starts at
+  ``|y| in [0.10, 0.20]`` (its end 13-23 cm from the edge) and needs a centre at ``|y| ~ 0.30``
+  (7 cm overhang) for an edge grasp.
 
 Every object rests on the table top (``z = 0``) at a random planar pose drawn from
 ``np.random.default_rng(seed)``; footprints (boxes as rectangles, cylinders as 16-gons) must not
@@ -30,7 +29,7 @@ overlap (separating-axis test with a margin). Task object ids are the scene's ob
 - ``grasping_clutter``: the tomato-soup can (graspable alone) surrounded by 3 objects (4 in all:
   SQPD-Net handles at most 4, 4.5) with 0-1.5 cm gaps; scenes whose target is already graspable
   (B.5.13 check on the ground truth, Panda IK) are redrawn;
-- ``grasping_large``: the large flat box, long side within 15 deg of world y, near one y side;
+- ``grasping_large``: the large flat box, long side within 15 deg of world y, on one y side;
 - ``interactive_moving`` (4.7.3): a tuna can as target, goal ``(0.30, 0.0, z_0)``, a pushing
   object touching it on its far (+x) side and 1-2 distractors.
 """
@@ -276,7 +275,7 @@ def _clutter(rng: np.random.Generator) -> tuple[tuple[ObjectSpec, ...], Task, st
 
 def _large(rng: np.random.Generator) -> tuple[tuple[ObjectSpec, ...], Task, str]:
     side = 1.0 if rng.random() < 0.5 else -1.0
-    xy = (float(rng.uniform(0.40, 0.52)), side * float(rng.uniform(0.20, 0.28)))
+    xy = (float(rng.uniform(0.40, 0.52)), side * float(rng.uniform(0.10, 0.20)))
     yaw = float(rng.uniform(-np.pi / 12, np.pi / 12))
     pl = _Placer(rng)
     pl.add(_spec("large_flat_box"), xy, yaw)

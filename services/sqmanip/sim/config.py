@@ -24,8 +24,10 @@ WORKSPACE_CENTER = (0.45, 0.0)
 """Workspace centre on the table top (m)."""
 WORKSPACE_SIZE = (0.512, 0.512, 0.192)
 """Workspace extent x, y, z (m), Ch. 4.5."""
-TABLE_SIZE = (0.80, 1.00, 0.05)
-"""Table box (m); its top face is at ``z = 0``, centred under the workspace."""
+TABLE_SIZE = (0.80, 0.80, 0.05)
+"""Table box (m); its top face is at ``z = 0``, centred 0.1 m beyond the workspace centre in x.
+Its side edges (``|y| = 0.40``) are 14 cm past the push workspace, near enough for pushes to
+carry a large flat box over them ("grasping large", 4.6.3); with a 1 m wide table no push could."""
 
 GRIPPER_MAX_WIDTH = 0.08
 """Panda gripper maximum opening (m): each finger joint 0..0.04."""

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 from planning_helpers import box
+from sqmanip.errors import ValidationError
 from sqmanip.geometry.superquadric import implicit_homogeneous
 from sqmanip.grasping import always_reachable
 from sqmanip.grasping.config import PANDA_HAND
@@ -136,13 +137,13 @@ def test_target_wider_than_the_opening_is_not_graspable():
 def test_flat_box_is_graspable_only_where_it_overhangs_the_table_edge():
     flat = (0.16, 0.16, 0.03)
     assert grasp_cost_now([([box(0.45, 0.0, flat)], 0)]) == 1.0
-    assert grasp_cost_now([([box(0.45, 0.48, flat)], 0)]) == 0.0  # 6 cm past y = 0.5
-    assert grasp_cost_now([([box(0.45, 0.48, flat)], 0)], edge_grasps=False) == 1.0
+    assert grasp_cost_now([([box(0.45, 0.38, flat)], 0)]) == 0.0  # 6 cm past y = 0.4
+    assert grasp_cost_now([([box(0.45, 0.38, flat)], 0)], edge_grasps=False) == 1.0
 
 
 def test_feasibility_moves_with_predicted_states():
     # the flat box is infeasible now, feasible in a predicted state pushed over the edge
-    scene = PackedScene.from_objects([([box(0.45, 0.40, (0.16, 0.16, 0.03))], 0)])
+    scene = PackedScene.from_objects([([box(0.45, 0.30, (0.16, 0.16, 0.03))], 0)])
     states = scene.poses[None].repeat(2, 1, 1, 1)
     states[1, 0, 1, 3] += 0.08
     assert grasping_cost(checker().feasible(scene, states, 0)).tolist() == [1.0, 0.0]
@@ -198,3 +199,21 @@ def test_gripper_part_values_equals_dense_evaluation():
         collide_dense = dense < 1.0
         assert torch.equal(got[..., m] < 1.0, collide_dense)
         assert collide_dense.any() and (~collide_dense).any()
+
+
+def test_pre_grasp_hand_must_clear_the_robot_mount():
+    # a top-down grasp whose hand is clear at the grasp pose but rises into an overhead slab
+    # (z 0.45-0.50) when backed off 10 cm to its pre-grasp pose
+    down = np.eye(4)
+    down[:3, :3] = np.diag([1.0, -1.0, -1.0])  # tool z (approach) points down
+    down[:3, 3] = (0.45, 0.0, 0.30)
+    frames = torch.as_tensor(down)[None]
+    slab = TableSpec(center=(0.45, 0.0), size=(0.3, 0.3), height=0.50, thickness=0.05)
+    assert checker(mount=slab).static_collisions(frames).tolist() == [True]
+    assert checker(mount=slab, approach_distance=0.0).static_collisions(frames).tolist() == [False]
+    assert checker(mount=None).static_collisions(frames).tolist() == [False]
+
+
+def test_pre_grasp_distance_is_validated():
+    with pytest.raises(ValidationError, match="approach_distance"):
+        GraspCostSpec(approach_distance=-0.1)

@@ -122,15 +122,15 @@ def test_moving_lone_box_pushes_towards_goal():
 
 
 def test_grasping_large_pushes_towards_the_table_edge():
-    # 16 cm flat box 10 cm from the y = +0.5 table edge: no grasp until it overhangs
-    big = box(0.45, 0.40, (0.16, 0.16, 0.03))
+    # 16 cm flat box 10 cm from the y = +0.4 table edge: no grasp until it overhangs
+    big = box(0.45, 0.30, (0.16, 0.16, 0.03))
     mpc = PushMPC(PusherDynamics(), reachability=always_reachable)
     res = mpc.plan([([big], 3)], GraspingTask(3), np.random.default_rng(0))
     assert res.current_cost == 1.0
     assert res.action is not None and res.cost == 0.0 and res.solved
     assert res.action[4] > 0.0  # the first push has a component towards the edge
     # and no sequence was allowed to carry the centre off the table
-    assert res.predicted_next[0, 1, 3] <= 0.5
+    assert res.predicted_next[0, 1, 3] <= 0.4
     assert res.n_rejected_workspace > 0
 
 
@@ -216,3 +216,21 @@ def test_without_any_grasp_a_small_target_ends_farthest_from_its_neighbours():
     ctx = _TaskContext.build(GraspingTask(0), scene)
     chosen = mpc._closest_to_graspable(scene, ctx, _final_states(scene, moves), torch.arange(3))
     assert chosen.tolist() == [1]  # both neighbours moved away
+
+
+def test_single_pushes_when_no_full_sequence_stays_on_the_table():
+    # The only push moves the box 7.5 cm towards the y = +0.4 edge: three of them carry it off
+    # the table, one does not. Instead of "no admissible push", the MPC plans single pushes.
+    b = box(0.45, 0.20, (0.03, 0.03, 0.05))
+    y_back = 0.20 - 0.04
+
+    def only_outward(poses, params, allowed):
+        return np.array([[0.45, y_back, 0.03, 0.0, 0.1, 0.0]]), np.array([0])
+
+    mpc = PushMPC(PusherDynamics(), config=MPCConfig(horizon=3), sampler=only_outward)
+    goal = b.pose.copy()
+    goal[1, 3] = 0.30
+    res = mpc.plan([([b], 7)], MovingTask({7: goal}), np.random.default_rng(0))
+    assert res.action is not None
+    assert res.sequence.shape == (1, 6)  # configured horizon 3, planned with horizon 1
+    assert res.predicted_next[0, 1, 3] == pytest.approx(0.275)

@@ -107,6 +107,16 @@ def test_tracker_matches_nearest_centres_and_follows_predictions():
     assert objs[0][1] == FIRST_NEW_ID
 
 
+def test_tracker_pairs_one_lost_and_one_new_object_by_elimination():
+    tr = ObjectTracker({0: np.array([0.40, 0.0, 0.03]), 1: np.array([0.60, 0.2, 0.03])})
+    # object 0 went 18 cm instead of the predicted few: beyond the gate, still the same object
+    objs, missing = tr.associate([([_sq(0.58, 0.0)], 9), ([_sq(0.60, 0.21)], 8)])
+    assert sorted(oid for _, oid in objs) == [0, 1] and missing == []
+    # 40 cm away (beyond three gates) is something else
+    objs, missing = tr.associate([([_sq(0.18, 0.0)], 9), ([_sq(0.60, 0.21)], 8)])
+    assert sorted(oid for _, oid in objs) == [1, FIRST_NEW_ID] and missing == [0]
+
+
 def test_write_png_round_trips_pixels(tmp_path):
     img = np.zeros((3, 4, 3), np.uint8)
     img[1, 2] = (10, 200, 30)
