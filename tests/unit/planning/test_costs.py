@@ -217,3 +217,25 @@ def test_pre_grasp_hand_must_clear_the_robot_mount():
 def test_pre_grasp_distance_is_validated():
     with pytest.raises(ValidationError, match="approach_distance"):
         GraspCostSpec(approach_distance=-0.1)
+
+
+def test_grasps_are_tried_nearest_the_object_centre_first():
+    # edge grasps spread along a long box overhanging the table: the one at the recognized tip is
+    # the one a few cm of size error spoils (it closes on air), so it is tried last
+    from sqmanip.grasping.types import Candidates
+    from sqmanip.planning.episode import centred_first
+
+    centre = np.array([0.45, 0.30, 0.025])
+    mid_y = np.array([0.496, 0.442, 0.30, 0.47])  # contact midpoints along the box's length
+    contacts = np.zeros((4, 2, 3))
+    contacts[:, :, :] = centre
+    contacts[:, :, 1] = mid_y[:, None]
+    contacts[:, 0, 2], contacts[:, 1, 2] = 0.0, 0.05  # fingers on the bottom and top faces
+    cands = Candidates(
+        torch.eye(4, dtype=torch.float64).expand(4, 4, 4),
+        torch.full((4,), 0.05, dtype=torch.float64),
+        torch.as_tensor(contacts),
+    )
+    feasible = np.array([0, 1, 3])  # the centre one collides with the table
+    assert centred_first(cands, feasible, centre).tolist() == [1, 3, 0]
+    assert centred_first(cands, np.zeros(0, dtype=np.int64), centre).tolist() == []

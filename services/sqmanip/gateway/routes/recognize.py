@@ -15,7 +15,7 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
-from fastapi import APIRouter, Query, Request
+from fastapi import APIRouter, Query, Request, Response
 from pydantic import ValidationError as PydanticValidationError
 
 from sqmanip.perception.types import RecognizeRequest, Workspace
@@ -197,4 +197,8 @@ async def recognize(
         metadata=((REQUEST_ID_KEY, request.state.request_id),),
         wait_for_ready=False,
     )
-    return scene_to_response(convert.scene_from_proto(response.scene))
+    # Serialized here in one pass (pydantic-core): returning the model would have FastAPI dump
+    # it to a dict, validate that against ``response_model`` again and JSON-encode it in Python,
+    # several ms for the point indices of a 40,000-point cloud. The schema stays documented.
+    scene = scene_to_response(convert.scene_from_proto(response.scene))
+    return Response(scene.model_dump_json(), media_type="application/json")
