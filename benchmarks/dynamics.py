@@ -23,8 +23,8 @@ Each part prints its table and is stored under its name in ``benchmarks/results/
   deg), visible and full flow RMSE (cm), 2D mask IoU (rendered id image, the split's camera)
   and 3D mask IoU (voxels), printed beside the thesis numbers. Reference rows: "no motion"
   (``T' = T``) and the physics baseline of 4.7.4 with ground-truth shapes (PyBullet re-simulation,
-  ~1 s per tuple, so on the first ``--physics-tuples`` tuples of each split, with the learned
-  models on the same tuples). R-SQPD-Net: the GT-SQPD-Net checkpoint fed with the poses and
+  ~0.1-0.3 s per tuple, so on the first ``--physics-tuples`` tuples of each split, with the
+  learned models on the same tuples). R-SQPD-Net: the GT-SQPD-Net checkpoint fed with the poses and
   shapes the in-process ``Recognizer`` finds in each tuple's observed cloud (cached on disk,
   ``--recognition-cache``); its predicted world motion is applied to the ground-truth objects
   for the metrics (``sqmanip.dynamics.recognized``).
@@ -471,7 +471,7 @@ def part_metrics(args: argparse.Namespace) -> dict[str, Any]:
                 )  # fmt: skip
         rows.append(row)
     # References: "no motion" (T' = T) bounds what the motion model adds; the physics baseline
-    # (PyBullet with the ground-truth shapes, ~1 s per tuple) on the first tuples of each split.
+    # (PyBullet with the ground-truth shapes, 0.1-0.3 s per tuple) on the first tuples of a split.
     refs: list[dict[str, Any]] = [
         {"method": "no motion (T' = T)",
          **{s: _metrics_of(d.batch.poses, d, iou_tuples) for s, d in data.items()}},

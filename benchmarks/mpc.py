@@ -9,10 +9,12 @@ executing it lifts the target); the thesis' criterion (a feasible grasp is found
 beside it as ``found``. Per-step planning latency is split into sampling (incl. start-pose
 collision checks), rollout, cost and grasp feasibility; recognition and execution are listed too.
 
-The physics baseline re-simulates each candidate push with the full robot (about 0.6-1.2 s per
-push on this CPU), so ``--physics-sequences`` (K for the PyBullet rows) is the knob that makes a
-reduced run affordable; the thesis' K = 100 is the default. Episodes run in worker processes
-(``--workers``; torch threads = 1 in each), or as Ray tasks with ``--ray-address``.
+The physics baseline re-simulates the candidate pushes in one batched PyBullet world (a kinematic
+Panda hand per scene copy, ``PhysicsDynamics``: 100 pushes of 4 objects in 8-20 s on this CPU,
+the full-robot reference took 55-115 s), so ``--physics-sequences`` (K for the PyBullet rows) is
+the knob that makes a reduced run affordable; the thesis' K = 100 is the default. Episodes run in
+worker processes (``--workers``; torch threads = 1 in each), or as Ray tasks with
+``--ray-address``.
 
 Full run (Table 4.6 sizes)::
 

@@ -156,6 +156,9 @@ class GenerationConfig:
     """Half the default wrist camera's resolution (same field of view)."""
     push_retries: int = 10
     catalogue_seed: int = 0
+    push_transit: str = "teleport"
+    """``SimConfig.push_transit`` of the generating simulator: ``teleport`` skips the arm's
+    free-space moves home and back (same resting poses, about 1.5x faster per tuple)."""
 
     def __post_init__(self) -> None:
         if not self.scale > 0:
@@ -341,13 +344,13 @@ def run_sequence(
 _SIM: Any = None
 
 
-def _simulator() -> Any:
+def _simulator(config: GenerationConfig) -> Any:
     """One simulator per process, created on first use (PyBullet DIRECT client)."""
     global _SIM
     if _SIM is None:
-        from sqmanip.sim import Simulator
+        from sqmanip.sim import SimConfig, Simulator
 
-        _SIM = Simulator()
+        _SIM = Simulator(SimConfig(push_transit=config.push_transit))
     return _SIM
 
 
@@ -361,7 +364,7 @@ def generate_shard(task: ShardTask, config: GenerationConfig) -> dict[str, Any]:
     t0 = time.perf_counter()
     catalogue = [o for o in make_catalogue(config.catalogue_seed)
                  if o.known == (task.split != "unknown")]  # fmt: skip
-    sim = _simulator()
+    sim = _simulator(config)
     tuples: list[Any] = []
     seq = 0
     while len(tuples) < task.count:
@@ -381,7 +384,7 @@ def generate_shard(task: ShardTask, config: GenerationConfig) -> dict[str, Any]:
 def _camera_meta(config: GenerationConfig) -> dict[str, Any]:
     """The wrist camera at the home pose (the robot returns home after every push), for the 2D
     mask IoU of :mod:`.evaluate` (``meta.camera``)."""
-    sim = _simulator()
+    sim = _simulator(config)
     k = config.intrinsics()
     pose = sim.camera_pose("wrist")
     return {"fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy, "width": k.width,
@@ -470,7 +473,7 @@ def generate_dataset(
 def _run_cli(args: argparse.Namespace) -> int:
     config = GenerationConfig(
         seed=args.seed, scale=args.scale, shard_size=args.shard_size,
-        cloud_points=0 if args.no_cloud else args.cloud_points,
+        cloud_points=0 if args.no_cloud else args.cloud_points, push_transit=args.push_transit,
     )  # fmt: skip
     manifests = generate_dataset(
         args.out, config, splits=args.splits, workers=args.workers, ray_address=args.ray_address
@@ -498,6 +501,9 @@ def add_cli(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--cloud-points", type=int, default=1024, help="observed points per tuple")
     p.add_argument("--no-cloud", action="store_true", help="skip the camera (faster)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--push-transit", choices=("teleport", "move"), default="teleport",
+                   help="teleport the arm between pushes (default, faster) or drive it; the "
+                        "pushes themselves are simulated alike")  # fmt: skip
     p.set_defaults(func=_run_cli)
     return p
 

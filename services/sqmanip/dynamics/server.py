@@ -12,10 +12,11 @@
   train one. The weights are loaded with ``torch.load(..., weights_only=True)`` and reloaded
   when ``model.pt`` changes on disk.
 - ``"physics"``: the PyBullet re-simulation baseline of 4.7.4
-  (:class:`sqmanip.dynamics.physics.PhysicsDynamics`): about 1 s of wall time per push, so at
-  most ``SQMANIP_DYNAMICS_PHYSICS_MAX_ACTIONS`` (16) per call. Its simulator lives on one
-  dedicated thread (PyBullet clients must never be shared across threads). Pushes the robot
-  cannot execute keep the poses and are flagged in ``failed``.
+  (:class:`sqmanip.dynamics.physics.PhysicsDynamics`, all pushes of a call in one PyBullet
+  world): 100 pushes of 4 objects take 8-20 s on this 2-core machine (10 pushes 1-3 s), so at
+  most ``SQMANIP_DYNAMICS_PHYSICS_MAX_ACTIONS`` (100, the MPC's K) per call. Its PyBullet
+  clients live on one dedicated thread (they must never be shared across threads). Pushes the
+  robot cannot execute keep the poses and are flagged in ``failed``.
 - any other name: a checkpoint directory of that name next to the SQPD-Net one (e.g.
   ``models/sqpdnet_baseline`` for the 4.7.1 baseline); unknown names are NOT_FOUND.
 
@@ -88,8 +89,9 @@ class DynamicsServiceSettings(BaseSettings):
     """``torch.set_num_threads`` of the service process (1: see the module docstring)."""
     max_actions: int = Field(100_000, ge=1)
     """Most actions per learned-model call (memory grows linearly with K N)."""
-    physics_max_actions: int = Field(16, ge=1)
-    """Most actions per ``physics`` call (about 1 s each, within the 30 s request deadline)."""
+    physics_max_actions: int = Field(100, ge=1)
+    """Most actions per ``physics`` call (100 pushes of 4 objects: 8-20 s, within the 30 s
+    request deadline)."""
     max_queue: int = Field(16, ge=0)
     """Requests that may wait per model thread; more are answered RESOURCE_EXHAUSTED."""
 

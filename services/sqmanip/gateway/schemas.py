@@ -709,8 +709,8 @@ class PredictBody(BaseModel):
     )
     model: str = Field(
         "sqpdnet",
-        description="'sqpdnet', 'physics' (PyBullet re-simulation, ~1 s per push) or the name of "
-        "another checkpoint on the server.",
+        description="'sqpdnet', 'physics' (PyBullet re-simulation, 100 pushes in 8-20 s) or the "
+        "name of another checkpoint on the server.",
     )
 
 
@@ -778,12 +778,13 @@ class TaskIn(BaseModel):
 class MPCOptionsIn(BaseModel):
     model_config = ConfigDict(extra="forbid")
     num_sequences: UInt32 | None = Field(
-        None, description="K sampled sequences (default 100; at most 16 with 'physics')."
+        None, description="K sampled sequences (default 100; at most 100 with 'physics')."
     )
     horizon: UInt32 | None = Field(None, description="Default: 1, or 3 for grasping.")
     seed: Int64 | None = None
     dynamics_model: str = Field(
-        "sqpdnet", description="'sqpdnet', 'physics' (PyBullet, ~1 s per push) or a checkpoint."
+        "sqpdnet",
+        description="'sqpdnet', 'physics' (PyBullet, 100 pushes in 8-20 s) or a checkpoint.",
     )
 
     def to_kwargs(self) -> dict[str, Any]:

@@ -18,8 +18,8 @@
   so one episode runs at a time (a second one is RESOURCE_EXHAUSTED). A dependency that is not
   SERVING is UNAVAILABLE within ``SQMANIP_MPC_PROBE_TIMEOUT_S`` (2 s).
 
-The physics model (PyBullet re-simulation, ~1 s per push) takes at most
-``SQMANIP_MPC_PHYSICS_MAX_SEQUENCES`` (16) sequences per step (the Dynamics service's limit).
+The physics model (PyBullet re-simulation, 100 pushes of 4 objects in 8-20 s) takes at most
+``SQMANIP_MPC_PHYSICS_MAX_SEQUENCES`` (100) sequences per step (the Dynamics service's limit).
 """
 
 from __future__ import annotations
@@ -62,7 +62,7 @@ class PlannerServiceSettings(BaseSettings):
 
     model_config = SettingsConfigDict(env_prefix="SQMANIP_MPC_", extra="ignore")
 
-    physics_max_sequences: int = Field(16, ge=1)
+    physics_max_sequences: int = Field(100, ge=1)
     """Most sequences per step with the ``physics`` model (the Dynamics service's limit)."""
     max_queue: int = Field(4, ge=0)
     """``Plan`` calls that may wait for the planning thread; more are RESOURCE_EXHAUSTED."""
@@ -252,7 +252,7 @@ class PlannerServicer(planner_pb2_grpc.PlannerServicer):
             if k is None:
                 raise ValidationError(
                     f"options.num_sequences: required with the physics model (at most {limit}; "
-                    "it re-simulates every push, about 1 s each)"
+                    "it re-simulates every push, 100 in 8-20 s)"
                 )
             if k > limit:
                 raise ValidationError(

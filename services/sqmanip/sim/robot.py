@@ -19,6 +19,23 @@ ARM_INDICES = list(range(7))
 FINGER_INDICES = [9, 10]
 HAND_LINK = 8
 TCP_LINK = 11
+FINGER_DYNAMICS = {"lateralFriction": 1.5, "spinningFriction": 0.01}
+"""``changeDynamics`` settings of the two finger links (over the URDF's contact values)."""
+
+
+def joint_motion_steps(
+    dq: np.ndarray, speed: float, config: SimConfig, min_time: float = 0.15
+) -> int:
+    """Physics steps of a :meth:`PandaRobot.move_joints` motion by ``dq (7,)``: the slowest
+    joint at ``speed`` x its velocity limit, x 1.5 (the smoothstep peak velocity is 1.5x the
+    mean), at least ``min_time``."""
+    T = max(float(np.max(np.abs(dq) / (speed * ARM_VELOCITY_LIMITS))) * 1.5, min_time)
+    return max(int(np.ceil(T / config.time_step)), 1)
+
+
+def smoothstep(s: np.ndarray | float) -> np.ndarray | float:
+    """The ``3 s^2 - 2 s^3`` profile of joint-space motions, ``s`` in [0, 1]."""
+    return s * s * (3 - 2 * s)
 
 
 class PandaRobot:
@@ -45,9 +62,7 @@ class PandaRobot:
             if names[idx] != name:
                 raise RuntimeError(f"unexpected Panda URDF joint order: {names}")
         for j in FINGER_INDICES:
-            p.changeDynamics(
-                self.body, j, lateralFriction=1.5, spinningFriction=0.01, physicsClientId=client
-            )
+            p.changeDynamics(self.body, j, **FINGER_DYNAMICS, physicsClientId=client)
         self.links = list(range(-1, p.getNumJoints(self.body, physicsClientId=client)))
 
     # --- state --------------------------------------------------------------------------------
@@ -136,12 +151,9 @@ class PandaRobot:
         speed = cfg.speed_scale if speed is None else speed
         q0 = self.q()
         dq = np.asarray(q_goal, np.float64) - q0
-        T = max(float(np.max(np.abs(dq) / (speed * ARM_VELOCITY_LIMITS))) * 1.5, min_time)
-        n = max(int(np.ceil(T / cfg.time_step)), 1)
+        n = joint_motion_steps(dq, speed, cfg, min_time)
         for i in range(1, n + 1):
-            s = i / n
-            s = s * s * (3 - 2 * s)
-            self.command_arm(q0 + s * dq)
+            self.command_arm(q0 + smoothstep(i / n) * dq)
             self._step()
         self.settle(q_goal)
 

@@ -281,8 +281,53 @@ def _write_pieces_obj(pieces: list[np.ndarray]) -> str:
     return path
 
 
-def spawn(spec: ObjectSpec, client: int) -> int:
-    """Create the PyBullet body for ``spec`` at its pose; returns the body id."""
+def object_shapes(spec: ObjectSpec, client: int, *, visual: bool = True) -> tuple[int, int]:
+    """PyBullet ``(collision, visual)`` shape ids of a box, cylinder or superquadric ``spec``
+    (``visual=False``: -1 for the visual, e.g. in a world that is never rendered). One pair can
+    be given to :func:`spawn` for any number of bodies of the same shape."""
+    if spec.kind == "mesh":
+        raise ValidationError("mesh objects have no shared shapes (URDFs are loaded whole)")
+    vis = -1
+    if spec.kind == "box":
+        half = [s / 2 for s in spec.size]
+        col = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=client)
+        if visual:
+            vis = p.createVisualShape(
+                p.GEOM_BOX, halfExtents=half, rgbaColor=list(spec.color), physicsClientId=client
+            )
+    elif spec.kind == "cylinder":
+        col = p.createCollisionShape(
+            p.GEOM_CYLINDER, radius=spec.radius, height=spec.height, physicsClientId=client
+        )
+        if visual:
+            vis = p.createVisualShape(
+                p.GEOM_CYLINDER,
+                radius=spec.radius,
+                length=spec.height,
+                rgbaColor=list(spec.color),
+                physicsClientId=client,
+            )
+    else:
+        verts, faces, pieces = _hull_pieces(spec)
+        obj = _write_pieces_obj(pieces)
+        col = p.createCollisionShape(p.GEOM_MESH, fileName=obj, physicsClientId=client)
+        if visual:
+            vis = p.createVisualShape(
+                p.GEOM_MESH,
+                vertices=verts.tolist(),
+                indices=faces.reshape(-1).astype(int).tolist(),
+                rgbaColor=list(spec.color),
+                physicsClientId=client,
+            )
+    return col, vis
+
+
+def spawn(spec: ObjectSpec, client: int, shapes: tuple[int, int] | None = None) -> int:
+    """Create the PyBullet body for ``spec`` at its pose; returns the body id.
+
+    ``shapes``: the ``(collision, visual)`` ids of :func:`object_shapes` for this shape, to
+    share them between bodies (made here when None; not used for ``mesh`` objects).
+    """
     pos, orn = list(spec.position), list(spec.orientation)
     if spec.kind == "mesh":
         path = _resolve(spec.path)
@@ -301,34 +346,7 @@ def spawn(spec: ObjectSpec, client: int) -> int:
             )
             body = p.createMultiBody(spec.mass, col, vis, pos, orn, physicsClientId=client)
     else:
-        if spec.kind == "box":
-            half = [s / 2 for s in spec.size]
-            col = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=client)
-            vis = p.createVisualShape(
-                p.GEOM_BOX, halfExtents=half, rgbaColor=list(spec.color), physicsClientId=client
-            )
-        elif spec.kind == "cylinder":
-            col = p.createCollisionShape(
-                p.GEOM_CYLINDER, radius=spec.radius, height=spec.height, physicsClientId=client
-            )
-            vis = p.createVisualShape(
-                p.GEOM_CYLINDER,
-                radius=spec.radius,
-                length=spec.height,
-                rgbaColor=list(spec.color),
-                physicsClientId=client,
-            )
-        else:
-            verts, faces, pieces = _hull_pieces(spec)
-            obj = _write_pieces_obj(pieces)
-            col = p.createCollisionShape(p.GEOM_MESH, fileName=obj, physicsClientId=client)
-            vis = p.createVisualShape(
-                p.GEOM_MESH,
-                vertices=verts.tolist(),
-                indices=faces.reshape(-1).astype(int).tolist(),
-                rgbaColor=list(spec.color),
-                physicsClientId=client,
-            )
+        col, vis = object_shapes(spec, client) if shapes is None else shapes
         body = p.createMultiBody(spec.mass, col, vis, pos, orn, physicsClientId=client)
     p.changeDynamics(
         body,

@@ -55,6 +55,7 @@ from .config import (
     TABLE_SIZE,
     WORKSPACE_CENTER,
     WORKSPACE_SIZE,
+    ShelfGeometry,
     SimConfig,
 )
 from .kinematics import PandaKinematics
@@ -65,6 +66,98 @@ WRIST_CAMERA_OFFSET = np.array(
 )
 """Optical frame of the wrist camera in the ``panda_hand`` frame: 5 cm off the hand axis,
 looking along the approach (hand z), image x along -hand y."""
+
+
+STATIC_FRICTION = 0.5
+"""Lateral friction of the static boxes (pedestal, table, floor, shelf boards)."""
+
+
+def static_boxes(
+    layout: str, shelf: ShelfGeometry | None = None
+) -> list[tuple[str, tuple[float, float, float], tuple[float, float, float], tuple]]:
+    """``(name, half_extents, centre, rgba)`` of the static boxes of a ``tabletop`` or
+    ``shelf`` world: the robot's pedestal, then the table (or the floor and the shelf boards)."""
+    bx, by, bz = ROBOT_BASE_POSITION
+    out = [("pedestal", (0.12, 0.12, bz / 2), (bx, by, bz / 2), (0.3, 0.3, 0.3, 1))]
+    if layout == "tabletop":
+        tx, ty, tz = TABLE_SIZE
+        center = (WORKSPACE_CENTER[0] + 0.1, WORKSPACE_CENTER[1], -tz / 2)
+        out.append(("table", (tx / 2, ty / 2, tz / 2), center, (0.75, 0.7, 0.6, 1)))
+    else:
+        out.append(("floor", (1.5, 1.5, 0.01), (0.5, 0.0, -0.01), (0.6, 0.6, 0.6, 1)))
+        for name, half, center in (shelf or ShelfGeometry()).boxes():
+            out.append((name, half, center, (0.55, 0.4, 0.25, 1)))
+    return out
+
+
+def configure_physics(client: int, config: SimConfig) -> None:
+    """Time step, solver iterations, deterministic pair order and gravity of ``config``."""
+    p.setPhysicsEngineParameter(
+        fixedTimeStep=config.time_step,
+        numSolverIterations=config.solver_iterations,
+        numSubSteps=0,
+        deterministicOverlappingPairs=1,
+        physicsClientId=client,
+    )
+    p.setGravity(0, 0, config.gravity, physicsClientId=client)
+
+
+def check_push_vector(v: np.ndarray) -> None:
+    """``ValidationError`` unless ``|v|`` is in [0.0001, 0.5] m (what :meth:`Simulator.push`
+    accepts)."""
+    if np.linalg.norm(v) < 1e-4 or np.linalg.norm(v) > 0.5:
+        raise ValidationError(f"|v| must be in [0.0001, 0.5] m, got {np.linalg.norm(v):.4f}")
+
+
+def check_in_region(x: np.ndarray, bounds: np.ndarray, name: str, region: str) -> None:
+    """``ValidationError`` when the point ``x`` is outside ``bounds (2, 3)`` (1e-6 m slack)."""
+    tol = 1e-6
+    if np.any(x < bounds[0] - tol) or np.any(x > bounds[1] + tol):
+        raise ValidationError(
+            f"{name} {np.round(x, 4).tolist()} is out of workspace: the {region} is "
+            f"{np.round(bounds[0], 3).tolist()} .. {np.round(bounds[1], 3).tolist()}"
+        )
+
+
+def push_tool_poses(
+    p0: np.ndarray, v: np.ndarray, yaw_offset: float, shelf: ShelfGeometry | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Tool poses ``(pre, start, end, post)`` (4 x 4, world) of a push from ``p0`` along ``v``
+    with the Fig. 4.6 orientation (:func:`.actions.push_tool_rotation`): on the tabletop the
+    pre-push and post-push poses are above the start and the end (at 0.25 m, at least 5 cm
+    higher); in the shelf (``shelf`` given) 12 cm back along the tool z axis, outside the
+    opening."""
+    R = push_tool_rotation(v, yaw_offset, down=shelf is None)
+    T_start = tool_pose(R, p0)
+    T_end = tool_pose(R, p0 + v)
+    if shelf is not None:
+        T_pre = offset_along_z(T_start, -0.12)
+        T_pre[0, 3] = min(T_pre[0, 3], shelf.front_x - 0.02)
+        T_post = offset_along_z(T_end, -0.12)
+    else:
+        T_pre = lifted(T_start, max(0.25 - p0[2], 0.05))
+        T_post = lifted(T_end, max(0.25 - T_end[2, 3], 0.05))
+    return T_pre, T_start, T_end, T_post
+
+
+def static_hits(robot: PandaRobot, static: dict[int, str], margin: float) -> list[str]:
+    """Names of the ``static`` bodies (id -> name) that ``robot``, as it is posed now, comes
+    closer to than ``margin`` (m); the links that stand on the pedestal do not count."""
+    hits = []
+    for body, name in static.items():
+        for c in p.getClosestPoints(robot.body, body, margin, physicsClientId=robot.client):
+            if c[3] <= 0 and name == "pedestal":  # the base stands on it
+                continue
+            if c[8] < margin:
+                hits.append(name)
+                break
+    return hits
+
+
+def joint_path(q0: np.ndarray, q1: np.ndarray, n: int = 8) -> list[np.ndarray]:
+    """The ``n`` configurations strictly between ``q0`` and ``q1`` on the joint-space line that
+    :meth:`Simulator.push` and the grasps check for collisions."""
+    return [q0 + s * (q1 - q0) for s in np.linspace(0, 1, n + 2)[1:-1]]
 
 
 def workspace_bounds() -> np.ndarray:
@@ -150,14 +243,7 @@ class Simulator:
         cid = self.client
         cfg = self.config
         p.resetSimulation(physicsClientId=cid)
-        p.setPhysicsEngineParameter(
-            fixedTimeStep=cfg.time_step,
-            numSolverIterations=cfg.solver_iterations,
-            numSubSteps=0,
-            deterministicOverlappingPairs=1,
-            physicsClientId=cid,
-        )
-        p.setGravity(0, 0, cfg.gravity, physicsClientId=cid)
+        configure_physics(cid, cfg)
         self._time = 0.0
         self._held = None
         self._bodies = []
@@ -185,21 +271,13 @@ class Simulator:
             p.GEOM_BOX, halfExtents=list(half), rgbaColor=list(color), physicsClientId=cid
         )
         body = p.createMultiBody(0.0, col, vis, list(center), physicsClientId=cid)
-        p.changeDynamics(body, -1, lateralFriction=0.5, physicsClientId=cid)
+        p.changeDynamics(body, -1, lateralFriction=STATIC_FRICTION, physicsClientId=cid)
         self._static[body] = name
         return body
 
     def _build_static(self, layout: str) -> None:
-        bx, by, bz = ROBOT_BASE_POSITION
-        self._add_static_box("pedestal", (0.12, 0.12, bz / 2), (bx, by, bz / 2), (0.3, 0.3, 0.3, 1))
-        if layout == "tabletop":
-            tx, ty, tz = TABLE_SIZE
-            center = (WORKSPACE_CENTER[0] + 0.1, WORKSPACE_CENTER[1], -tz / 2)
-            self._add_static_box("table", (tx / 2, ty / 2, tz / 2), center, (0.75, 0.7, 0.6, 1))
-        else:
-            self._add_static_box("floor", (1.5, 1.5, 0.01), (0.5, 0.0, -0.01), (0.6, 0.6, 0.6, 1))
-            for name, half, center in self.config.shelf.boxes():
-                self._add_static_box(name, half, center, (0.55, 0.4, 0.25, 1))
+        for name, half, center, color in static_boxes(layout, self.config.shelf):
+            self._add_static_box(name, half, center, color)
 
     # --- random scenes -------------------------------------------------------------------------
 
@@ -415,13 +493,7 @@ class Simulator:
         hits: list[str] = []
         try:
             r.pose_config(q, width)
-            for body, name in self._static.items():
-                for c in p.getClosestPoints(r.body, body, margin, physicsClientId=self.client):
-                    if c[3] <= 0 and name == "pedestal":  # the base stands on it
-                        continue
-                    if c[8] < margin:
-                        hits.append(name)
-                        break
+            hits += static_hits(r, self._static, margin)
             if objects:
                 for i, body in enumerate(self._bodies):
                     if i == self._held:
@@ -447,8 +519,8 @@ class Simulator:
     def _check_path(
         self, q0: np.ndarray, q1: np.ndarray, width: float, what: str, n: int = 8
     ) -> None:
-        for s in np.linspace(0, 1, n + 2)[1:-1]:
-            self._check_free(q0 + s * (q1 - q0), width, f"joint path to {what}")
+        for q in joint_path(q0, q1, n):
+            self._check_free(q, width, f"joint path to {what}")
 
     def _check_idle(self) -> None:
         if self._held is not None:
@@ -456,17 +528,9 @@ class Simulator:
 
     def _in_workspace(self, x: np.ndarray, name: str) -> None:
         if self._spec.kind == "shelf":
-            b = self.config.shelf.inner_bounds()
-            region = "shelf interior"
+            check_in_region(x, self.config.shelf.inner_bounds(), name, "shelf interior")
         else:
-            b = workspace_bounds()
-            region = "workspace"
-        tol = 1e-6
-        if np.any(x < b[0] - tol) or np.any(x > b[1] + tol):
-            raise ValidationError(
-                f"{name} {np.round(x, 4).tolist()} is out of workspace: the {region} is "
-                f"{np.round(b[0], 3).tolist()} .. {np.round(b[1], 3).tolist()}"
-            )
+            check_in_region(x, workspace_bounds(), name, "workspace")
 
     def _result(self, ok: bool, msg: str, before: SimState, t0: float) -> ActionResult:
         after = self.get_state()
@@ -481,8 +545,7 @@ class Simulator:
         cfg = self.config
         p0 = as_point(p_start, "p")
         v = as_point(v, "v")
-        if np.linalg.norm(v) < 1e-4 or np.linalg.norm(v) > 0.5:
-            raise ValidationError(f"|v| must be in [0.0001, 0.5] m, got {np.linalg.norm(v):.4f}")
+        check_push_vector(v)
         self._in_workspace(p0, "push start p")
         self._in_workspace(p0 + v, "push end p + v")
         self._check_idle()
@@ -491,13 +554,8 @@ class Simulator:
         plan = None
         errors = []
         for yaw in (0.0, np.pi):
-            R = push_tool_rotation(v, yaw, down=not shelf)
-            T_start = tool_pose(R, p0)
-            if shelf:
-                T_pre = offset_along_z(T_start, -0.12)
-                T_pre[0, 3] = min(T_pre[0, 3], cfg.shelf.front_x - 0.02)
-            else:
-                T_pre = lifted(T_start, max(0.25 - p0[2], 0.05))
+            T_pre, T_start, _, T_post = push_tool_poses(p0, v, yaw, cfg.shelf if shelf else None)
+            R = T_start[:3, :3]
             try:
                 q_pre = self._solve(T_pre, q_home, "pre-push pose")
                 q_start = self._solve(T_start, q_pre, "push start")
@@ -507,12 +565,6 @@ class Simulator:
                         tool_pose(R, p0 + v * k / cfg.push_via_points), q_prev, "push via point"
                     )
                     qs.append(q_prev)
-                T_end = tool_pose(R, p0 + v)
-                T_post = (
-                    offset_along_z(T_end, -0.12)
-                    if shelf
-                    else lifted(T_end, max(0.25 - T_end[2, 3], 0.05))
-                )
                 q_post = self._solve(T_post, qs[-1], "post-push pose")
             except PreconditionError as exc:
                 errors.append(str(exc))
@@ -533,13 +585,21 @@ class Simulator:
 
         before = self.get_state()
         t0 = self._time
-        r.actuate_gripper(0.0, max_time=0.3)
-        r.move_joints(q_pre)
+        teleport = cfg.push_transit == "teleport"
+        if teleport:  # the free-space path was checked above; nothing is touched along it
+            r.reset_q(q_pre, 0.0)
+        else:
+            r.actuate_gripper(0.0, max_time=0.3)
+            r.move_joints(q_pre)
         r.move_joints(q_start, speed=0.2)
         seg = float(np.linalg.norm(v)) / cfg.push_via_points / cfg.push_speed
         r.follow(qs, [seg] * len(qs))
         r.move_joints(q_post, speed=0.2)
-        r.move_joints(q_home)
+        if teleport:
+            r.reset_q(q_home, 0.0)
+            self._settle(self._bodies)  # what the move home gave: objects at rest
+        else:
+            r.move_joints(q_home)
         return self._result(True, "pushed", before, t0)
 
     def _plan_grasp(self, pose: np.ndarray, width: float, q_seed: np.ndarray):

@@ -209,6 +209,29 @@ def test_push_along_x_moves_the_box_along_x_and_leaves_a_far_object(sim):
     assert np.linalg.norm(d1) < 0.002
 
 
+def test_teleported_transit_leaves_the_objects_where_driving_the_arm_does(sim):
+    # the pushing data generator skips the free-space moves home and back (push_transit)
+    from sqmanip.sim import SimConfig
+
+    spec = SceneSpec(
+        objects=(box((0.05, 0.05, 0.05), 0.42, -0.10), box((0.06, 0.04, 0.08), 0.47, -0.04))
+    )
+    fast = Simulator(SimConfig(push_transit="teleport"))
+    try:
+        ends = []
+        for s in (sim, fast):
+            s.reset(spec)
+            res = s.push([0.36, -0.10, 0.02], [0.09, 0.05, 0.0])
+            ends.append(np.stack([o.pose for o in res.after.objects]))
+            assert np.allclose(res.after.joint_positions, s.home, atol=1e-3)  # back home
+        moved = ends[0][:, :2, 3] - np.stack([o.pose for o in res.before.objects])[:, :2, 3]
+        assert np.linalg.norm(moved[0]) > 0.03
+        assert np.abs(ends[0][:, :3, 3] - ends[1][:, :3, 3]).max() < 0.002
+        assert np.abs(ends[0][:, :3, :3] - ends[1][:, :3, :3]).max() < 0.02
+    finally:
+        fast.close()
+
+
 def test_top_grasp_on_a_5cm_box_lifts_and_holds_it(sim):
     sim.reset(SceneSpec(objects=(box((0.05, 0.05, 0.05), 0.45, 0.0),)))
     res = sim.grasp(top_grasp(0.45, 0.0, 0.03), 0.08)

@@ -31,8 +31,8 @@ from ..schemas import (
 router = APIRouter(tags=["planning"])
 
 PLAN_TIMEOUT_S = 120.0
-"""A physics-model step re-simulates every push (~1 s each) and may take longer than the
-default request timeout."""
+"""A physics-model step re-simulates every push (100 in 8-20 s; three rounds with grasping's
+horizon 3) and may take longer than the default request timeout."""
 
 
 def _finite(x: float) -> float | None:

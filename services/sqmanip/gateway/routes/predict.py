@@ -40,7 +40,7 @@ async def predict(
     request: Request, body: PredictBody, dynamics: DynamicsDep, settings: SettingsDep
 ) -> PredictResponse:
     """SQPD-Net (B.3) evaluates every push in one batched pass; ``model: "physics"``
-    re-simulates each push in PyBullet (4.7.4)."""
+    re-simulates the pushes in PyBullet (4.7.4), all in one world (100 in 8-20 s)."""
     parts = [o.to_domain(f"objects[{i}]") for i, o in enumerate(body.objects)]
     actions = convert._array(body.actions, "actions", (None, 6)) if body.actions else None
     if actions is None:
