@@ -457,7 +457,7 @@ def part_metrics(args: argparse.Namespace) -> dict[str, Any]:
             "sqmanip.dynamics.generate pushing --out data/pushing --scale 0.05`"
         )
     data = {k: load_split(p, with_cloud=True) for k, p in splits.items()}
-    iou_tuples = 20 if args.quick else None
+    iou_tuples = args.iou_tuples or (20 if args.quick else None)
     rows: list[dict[str, Any]] = []
     for model_dir in args.models:
         model = load_checkpoint(model_dir)
@@ -562,6 +562,10 @@ def main(argv: list[str] | None = None) -> int:
                     help="metrics: directory with test/ and unknown/ splits")  # fmt: skip
     ap.add_argument("--models", nargs="+", default=["models/sqpdnet", "models/sqpdnet_baseline"],
                     help="metrics: checkpoint directories (config.json + model.pt)")  # fmt: skip
+    ap.add_argument("--iou-tuples", type=int, default=None,
+                    help="metrics: 2D/3D mask IoU on the first N tuples of each split (default "
+                         "all, 20 with --quick; rendering is the slow part on 1200-tuple "
+                         "splits)")  # fmt: skip
     ap.add_argument("--physics-tuples", type=int, default=None,
                     help="metrics: tuples per split for the PyBullet baseline (default 20, "
                          "5 with --quick; 0 skips it)")  # fmt: skip

@@ -25,9 +25,13 @@ the scene), so a shard's content depends only on ``(seed, split, j)``, not on th
 built it or on the worker count. Finished shards are skipped on a re-run; the manifest is
 rebuilt at the end. Parallel over processes (``--workers``) or Ray tasks (``--ray-address``).
 
-Cost: one push (robot to the pre-push pose, the 10-via-point push, back home) takes ~0.7 s
-wall on one core, the half-resolution observation ~0.25 s; the full 15600 tuples take about
-4-5 core-hours.
+Cost: with the arm teleported between pushes (``push_transit``, the default here) a push is
+the simulated descent, the 10-via-point push and the lift, ~0.2-0.3 s wall on one core
+(~0.7 s when the arm drives home and back); the half-resolution observation adds ~0.25 s. The
+full set (train without clouds: ``--splits train --no-cloud``, then ``--splits val test
+unknown`` with them) took 39 + 24 minutes on 2 worker processes of a 2-core machine that was
+also training and benchmarking, about 1.5 core-hours (it was 4-5 with the arm driven and every
+tuple observed).
 """
 
 from __future__ import annotations
