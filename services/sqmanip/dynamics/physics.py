@@ -419,6 +419,14 @@ class PhysicsDynamics:
             out[rows] = world.simulate(specs[s : s + self.chunk], shapes, paths, extents)
 
 
+def _hand_base(c: _Copy, tcp: np.ndarray) -> np.ndarray:
+    """World position(s) of the hand's base (``panda_hand``) with its tool centre point at
+    ``tcp (..., 3)`` of copy ``c`` (copy frame)."""
+    from sqmanip.sim.kinematics import TCP_OFFSET
+
+    return tcp - TCP_OFFSET * c.path.R[:, 2] + c.offset
+
+
 def _array(x: Any) -> np.ndarray:
     return np.asarray(torch.as_tensor(x, dtype=torch.float64).cpu())
 
@@ -771,18 +779,13 @@ class _BatchWorld:
         return k
 
     def _hand_at(self, c: _Copy, tcp: np.ndarray) -> None:
-        from sqmanip.sim.kinematics import TCP_OFFSET
-
-        pos = tcp - TCP_OFFSET * c.path.R[:, 2] + c.offset
         self.p.resetBasePositionAndOrientation(
-            c.hand, pos.tolist(), c.quat, physicsClientId=self.client
+            c.hand, _hand_base(c, tcp).tolist(), c.quat, physicsClientId=self.client
         )
 
     def _hand_positions(self, c: _Copy) -> list[list[float]]:
         """World positions of the hand's base (``panda_hand``) along ``c.steps``."""
-        from sqmanip.sim.kinematics import TCP_OFFSET
-
-        return (c.steps - TCP_OFFSET * c.path.R[:, 2] + c.offset).tolist()
+        return _hand_base(c, c.steps).tolist()
 
     def _update(
         self, c: _Copy, shape: _Shapes, moving: list[int], moving_hand: bool, now: int | None
