@@ -127,3 +127,23 @@ def test_train_writes_checkpoints_and_resumes(tmp_path):
         model.state_dict().values(), result["model"].state_dict().values(), strict=True
     ):
         torch.testing.assert_close(a, b, rtol=0, atol=0)
+
+
+def test_evaluate_reports_both_flow_definitions_of_the_same_points():
+    from sqmanip.dynamics.evaluate import evaluate
+
+    torch.manual_seed(0)
+    data = tensors_from_tuples(synthetic_tuples(6, seed=3), 4)
+    res = evaluate(make_model(cpu_config(device="cpu")).double(), data, n_points=32)
+    assert res["full_flow_cm"] > 0.0
+    assert res["full_flow_code"] == pytest.approx(res["full_flow_cm"] ** 2 / 3.0)
+    assert "visible_flow_code" not in res  # synthetic tuples carry no observed cloud
+
+
+def test_slow_metrics_use_evenly_spaced_tuples_not_the_first():
+    from sqmanip.dynamics.evaluate import evenly_spaced
+
+    assert evenly_spaced(5, None).tolist() == [0, 1, 2, 3, 4]
+    idx = evenly_spaced(1200, 200)
+    assert len(idx) == 200 and idx[0] == 0 and idx[-1] == 1199
+    assert (idx.diff() >= 5).all()  # spread over the split, which is ordered by object count

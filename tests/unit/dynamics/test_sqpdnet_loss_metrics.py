@@ -8,6 +8,7 @@ import pytest
 import torch
 from dynamics_helpers import random_scene
 from sqmanip.dynamics.metrics import (
+    coordinate_flow_mse,
     flow_rmse,
     mask_iou_3d,
     pose_errors,
@@ -15,7 +16,7 @@ from sqmanip.dynamics.metrics import (
     volume_points,
 )
 from sqmanip.dynamics.model import sqpd_loss
-from sqmanip.geometry.transforms import se2_matrix
+from sqmanip.geometry.transforms import se2_matrix, transform_points
 
 F64 = torch.float64
 
@@ -76,6 +77,20 @@ def test_pose_and_flow_errors_of_a_known_offset():
     assert flow_rmse(pred, T, pts, mask) == pytest.approx(2.0, rel=1e-9)
     turned = T @ se2_matrix(torch.tensor(math.pi / 2, dtype=F64), 0.0, 0.0)
     assert pose_errors(turned, T, mask)["orientation_deg"] == pytest.approx(90.0, rel=1e-9)
+
+
+def test_code_flow_error_is_the_mean_squared_coordinate_difference_of_the_same_points():
+    """The authors' FlowError: sum((f_gt - f_pred)^2) / f.size in cm^2, no square root."""
+    T = _poses(7)
+    pred = T @ se2_matrix(torch.tensor(0.3, dtype=F64), 0.01, -0.02)
+    mask = torch.ones(1, 3, dtype=torch.bool)
+    pts = torch.randn(1, 3, 50, 3, dtype=F64) * 0.04
+    flow_gt = (transform_points(T, pts) - pts) * 100.0  # cm; the start pose is the identity
+    flow_pred = (transform_points(pred, pts) - pts) * 100.0
+    expected = float(((flow_gt - flow_pred) ** 2).sum() / flow_pred.numel())
+    got = coordinate_flow_mse(flow_rmse(pred, T, pts, mask))
+    assert got == pytest.approx(expected, rel=1e-9)
+    assert coordinate_flow_mse(2.0) == pytest.approx(4.0 / 3.0)
 
 
 def test_volume_points_lie_inside_and_iou_is_one_for_identical_poses():
