@@ -11,7 +11,8 @@ The amodal fit adds what one view implies about the unseen side:
   otherwise only ``w_s relu(-min_z)^2``;
 - **free space**: the camera saw through the space in front of every observed point. Points
   ``x - s u`` (``u`` the unit ray from the viewpoint, ``s`` in ``free_space_offsets``) before
-  object points, and points along the rays to table points near the object, must be outside:
+  object points, and points along the rays to the support plane's points and to points seen
+  below it (the floor past a table's edge) where they pass the object, must be outside:
   ``w_f mean(delta^2 [f < 1])``, with ``delta`` the radial distance (the penetration depth);
 - **priors**: initial orientations include upright ones (object z along the plane normal) and
   lying ones, besides the PCA axes and their permutations; tapering has a small ``w_k k^2``.
@@ -162,6 +163,16 @@ def initial_orientations(X: np.ndarray, upright: bool, pca: bool = True) -> list
     return out
 
 
+BAND_Z_MIN = 0.004
+"""Free-space samples on rays to the support stay this far (m) above it (plane-fit noise)."""
+BELOW_PLANE = 0.05
+"""``table`` points this far (m) below the support plane were seen past its edge."""
+BAND_STEPS = 8
+"""Samples per ray to a point below the plane, across the object's height band."""
+BAND_MIN_GAP = 0.005
+"""Those samples nearer than this (m) to a segment point are dropped (sensor noise)."""
+
+
 def _free_space_samples(
     X: np.ndarray,
     eye: np.ndarray,
@@ -169,7 +180,13 @@ def _free_space_samples(
     settings: PerceptionSettings,
     rng: np.random.Generator,
 ) -> np.ndarray:
-    """Local points that the camera at local ``eye`` saw through: ``(F, 3)`` (may be empty)."""
+    """Local points that the camera at local ``eye`` saw through: ``(F, 3)`` (may be empty).
+
+    Three kinds: points just before the segment's own points along their rays; points 1-30 cm
+    before ``table`` points on the support plane near the object; and, for ``table`` points
+    seen below the plane (the floor past a table's edge), the stretch of their rays through the
+    object's height band, nearest the segment first (what bounds an end overhanging the edge).
+    """
     offsets = np.asarray(settings.free_space_offsets)
     n_rays = settings.free_space_rays
     if n_rays == 0 or len(offsets) == 0:
@@ -183,6 +200,8 @@ def _free_space_samples(
         c = X.mean(0)
         radius = np.linalg.norm(X[:, :2] - c[:2], axis=1).max() + 0.02
         height = X[:, 2].max() + 0.02
+        below = table[:, 2] < -BELOW_PLANE
+        table, under = table[~below], table[below]
         near = table[np.linalg.norm(table[:, :2] - c[:2], axis=1) < radius + 0.15]
         if len(near):
             near = near[rng.choice(len(near), min(len(near), 8 * n_rays), replace=False)]
@@ -192,14 +211,69 @@ def _free_space_samples(
             q = (near[:, None, :] - steps[None, :, None] * u[:, None, :]).reshape(-1, 3)
             inside = (
                 (np.linalg.norm(q[:, :2] - c[:2], axis=1) < radius)
-                & (q[:, 2] > 0.004)
+                & (q[:, 2] > BAND_Z_MIN)
                 & (q[:, 2] < height)
             )
             q = q[inside]
             if len(q) > n_rays * len(offsets):
                 q = q[rng.choice(len(q), n_rays * len(offsets), replace=False)]
             samples.append(q)
+        if len(under):
+            limit = n_rays * len(offsets)
+            q = _rays_through_band(under, eye, c[:2], radius, height, 16 * limit, rng)
+            samples.append(_nearest_to(q, X, 2 * limit))
     return np.concatenate(samples)
+
+
+def _nearest_to(q: np.ndarray, X: np.ndarray, n: int) -> np.ndarray:
+    """The ``n`` samples ``q`` nearest the segment's points ``X`` (but not within
+    ``BAND_MIN_GAP``): free space right next to the seen surface is what bounds the hidden
+    extent (a box's end past a table edge); a sample 15 cm away constrains nothing."""
+    if len(q) == 0:
+        return q
+    from scipy.spatial import cKDTree
+
+    dist, _ = cKDTree(X).query(q, k=1)
+    order = np.argsort(np.where(dist < BAND_MIN_GAP, np.inf, dist), kind="stable")[:n]
+    return q[order[np.isfinite(dist[order]) & (dist[order] >= BAND_MIN_GAP)]]
+
+
+def _rays_through_band(
+    ends: np.ndarray,
+    eye: np.ndarray,
+    centre: np.ndarray,
+    radius: float,
+    height: float,
+    limit: int,
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """Points of the rays ``eye -> ends`` (local frame, ``z`` above the support; ``ends`` below
+    it) inside the cylinder ``|xy - centre| < radius``, ``BAND_Z_MIN < z < height``; at most
+    ``limit``. Each such ray crosses the band once, and the camera saw through that stretch.
+    """
+    d = ends - eye
+    d = d[d[:, 2] < -1e-9]
+    if not len(d):
+        return np.zeros((0, 3))
+    s_top = np.clip((height - eye[2]) / d[:, 2], 0.0, 1.0)  # ray parameter where z = height
+    s_end = np.clip((BAND_Z_MIN - eye[2]) / d[:, 2], 0.0, 1.0)
+    # keep rays whose band stretch comes near the object (segment-to-centre distance in xy)
+    a = eye[:2] + s_top[:, None] * d[:, :2]
+    b = eye[:2] + s_end[:, None] * d[:, :2]
+    ab = b - a
+    w = np.clip(((centre - a) * ab).sum(1) / (ab * ab).sum(1).clip(1e-12), 0.0, 1.0)
+    near = (s_end > s_top) & (np.linalg.norm(a + w[:, None] * ab - centre, axis=1) < radius)
+    idx = np.flatnonzero(near)
+    if not len(idx):
+        return np.zeros((0, 3))
+    idx = idx[rng.choice(len(idx), min(len(idx), limit // BAND_STEPS + 1), replace=False)]
+    f = (np.arange(BAND_STEPS) + 0.5) / BAND_STEPS
+    s = s_top[idx, None] + f[None, :] * (s_end - s_top)[idx, None]  # (R, steps)
+    q = (eye + s[..., None] * d[idx, None, :]).reshape(-1, 3)
+    q = q[np.linalg.norm(q[:, :2] - centre, axis=1) < radius]
+    if len(q) > limit:
+        q = q[rng.choice(len(q), limit, replace=False)]
+    return q
 
 
 def tapered_radial_distance(x: np.ndarray, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -570,7 +644,8 @@ def fit_segments(
 ) -> list[FitResult]:
     """Fit one superquadric to each segment (``(P, 3)`` world points, equal ``P``), batched.
 
-    ``plane``, ``viewpoint`` and ``table_points`` (world points of the removed support plane)
+    ``plane``, ``viewpoint`` and ``table_points`` (world points of the removed support plane and
+    points seen below it, :func:`_free_space_samples`)
     feed the amodal terms (module docstring); ``amodal=False`` is the plain DSQOpt fit.
     Deterministic for ``seed``.
     """

@@ -33,9 +33,14 @@ log = logging.getLogger(__name__)
 MIN_FIT_POINTS = 10
 """Labelled segments with fewer points are not fitted (too few to define a superquadric)."""
 MAX_TABLE_POINTS = 6000
-"""Support-plane points kept (random subset) for the free-space term."""
+"""Support-plane points, and points below the plane, kept (random subsets) for the free-space
+term."""
 CONFIDENCE_SCALE = 0.005
 """``confidence = exp(-rms radial distance / CONFIDENCE_SCALE)`` (m)."""
+
+
+def _at_most(points: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+    return points[rng.choice(len(points), n, replace=False)] if len(points) > n else points
 
 
 def _residual(points: np.ndarray, part) -> float:
@@ -265,9 +270,14 @@ class Recognizer:
         if plane is not None:
             above = plane.signed_distance(pts) > s.ransac_threshold
             keep = above & ~plane.inliers
-            table = pts[plane.inliers]
-            if len(table) > MAX_TABLE_POINTS:
-                table = table[rng.choice(len(table), MAX_TABLE_POINTS, replace=False)]
+            # seen-through evidence for the amodal fit: the support plane, and anything seen
+            # below it anywhere in the frame (the floor past a table's edge)
+            seen = points[:: max(1, len(points) // (8 * MAX_TABLE_POINTS))]  # enough, cheaply
+            below = seen[plane.signed_distance(seen) < -s.ransac_threshold]
+            table = np.concatenate(
+                [_at_most(pts[plane.inliers], MAX_TABLE_POINTS, rng),
+                 _at_most(below.astype(np.float64), MAX_TABLE_POINTS, rng)]
+            )  # fmt: skip
             object_idx = cropped[keep]
         else:
             object_idx = cropped

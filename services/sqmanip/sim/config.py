@@ -1,7 +1,8 @@
 """Simulator constants and configuration: world layout, physics, camera defaults.
 
 World frame (REP 103: x forward, z up, gravity -z). The table top is the plane ``z = 0``; the
-Panda base stands on a 0.10 m pedestal at ``(0, 0, 0.10)``, behind the table edge, so the whole
+Panda base stands on a 0.10 m pedestal at ``(0, 0, 0.10)``, behind the table edge (the floor is
+``TABLE_FLOOR_DEPTH`` below the table top), so the whole
 0.512 x 0.512 x 0.192 m workspace of Ch. 4.5, centred at ``(0.45, 0, 0)`` (x in [0.194, 0.706],
 y in [-0.256, 0.256], z in [0, 0.192]), is reachable with the push orientation of Fig. 4.6 at
 every yaw (checked with the pinocchio IK; the 0.10 m base height keeps the near edge and far
@@ -29,6 +30,11 @@ TABLE_SIZE = (0.80, 0.80, 0.05)
 """Table box (m); its top face is at ``z = 0``, centred 0.1 m beyond the workspace centre in x.
 Its side edges (``|y| = 0.40``) are 14 cm past the push workspace, near enough for pushes to
 carry a large flat box over them ("grasping large", 4.6.3); with a 1 m wide table no push could."""
+
+TABLE_FLOOR_DEPTH = 0.72
+"""The tabletop world's floor lies this far below the table top (a standard table height). The
+camera sees it past the table's edges: without it nothing comes back there, and an object
+overhanging an edge has no free-space evidence beyond its end (perception fits it too long)."""
 
 GRIPPER_MAX_WIDTH = 0.08
 """Panda gripper maximum opening (m): each finger joint 0..0.04."""

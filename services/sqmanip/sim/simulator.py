@@ -52,6 +52,7 @@ from .config import (
     LABEL_ROBOT,
     LABEL_STATIC,
     ROBOT_BASE_POSITION,
+    TABLE_FLOOR_DEPTH,
     TABLE_SIZE,
     WORKSPACE_CENTER,
     WORKSPACE_SIZE,
@@ -76,13 +77,16 @@ def static_boxes(
     layout: str, shelf: ShelfGeometry | None = None
 ) -> list[tuple[str, tuple[float, float, float], tuple[float, float, float], tuple]]:
     """``(name, half_extents, centre, rgba)`` of the static boxes of a ``tabletop`` or
-    ``shelf`` world: the robot's pedestal, then the table (or the floor and the shelf boards)."""
+    ``shelf`` world: the robot's pedestal, then the table and the floor below it (or the floor
+    and the shelf boards). Each floor is 3 x 3 m, the physics baseline's grid spacing."""
     bx, by, bz = ROBOT_BASE_POSITION
     out = [("pedestal", (0.12, 0.12, bz / 2), (bx, by, bz / 2), (0.3, 0.3, 0.3, 1))]
     if layout == "tabletop":
         tx, ty, tz = TABLE_SIZE
         center = (WORKSPACE_CENTER[0] + 0.1, WORKSPACE_CENTER[1], -tz / 2)
         out.append(("table", (tx / 2, ty / 2, tz / 2), center, (0.75, 0.7, 0.6, 1)))
+        out.append(("floor", (1.5, 1.5, 0.01), (0.5, 0.0, -TABLE_FLOOR_DEPTH - 0.01),
+                    (0.6, 0.6, 0.6, 1)))  # fmt: skip
     else:
         out.append(("floor", (1.5, 1.5, 0.01), (0.5, 0.0, -0.01), (0.6, 0.6, 0.6, 1)))
         for name, half, center in (shelf or ShelfGeometry()).boxes():
