@@ -395,6 +395,54 @@ class SQPDNet(nn.Module):
             actions[:, 3:],
         )
 
+    @torch.no_grad()
+    def predict_batch(
+        self,
+        poses: torch.Tensor | np.ndarray,
+        params: torch.Tensor | np.ndarray,
+        actions: torch.Tensor | np.ndarray,
+        kinds: torch.Tensor | np.ndarray | Sequence[int] | None = None,
+    ) -> torch.Tensor:
+        """Next poses ``(K, N, 4, 4)`` of ``K`` *different* scenes, one action each, in one pass.
+
+        ``poses (K, N, 4, 4)``, ``params (N, 9)`` and ``kinds (N,)`` shared, ``actions (K, 6)``:
+        the MPC's later horizon steps, where every sequence has its own predicted scene
+        (:func:`sqmanip.planning.mpc.predict_scenes`).
+        """
+        self.eval()
+        ref = next(self.parameters())
+        poses = torch.as_tensor(poses, dtype=ref.dtype, device=ref.device)
+        params = torch.as_tensor(params, dtype=ref.dtype, device=ref.device)
+        actions = torch.as_tensor(actions, dtype=ref.dtype, device=ref.device)
+        if poses.ndim != 4 or poses.shape[-2:] != (4, 4):
+            raise ValueError(f"poses must have shape (K, N, 4, 4), got {tuple(poses.shape)}")
+        k, n = poses.shape[:2]
+        if n > self.config.max_objects:
+            raise ValueError(
+                f"poses has {n} objects, more than max_objects={self.config.max_objects}"
+            )
+        if params.shape != (n, N_PARAMS):
+            raise ValueError(f"params must have shape ({n}, {N_PARAMS}), got {tuple(params.shape)}")
+        if actions.shape != (k, 6):
+            raise ValueError(f"actions must have shape ({k}, 6), got {tuple(actions.shape)}")
+        kinds_t = (
+            torch.zeros(n, dtype=torch.long, device=ref.device)
+            if kinds is None
+            else torch.as_tensor(kinds, dtype=torch.long, device=ref.device)
+        )
+        if kinds_t.shape != (n,):
+            raise ValueError(f"kinds must have shape ({n},), got {tuple(kinds_t.shape)}")
+        if k == 0 or n == 0:
+            return poses.clone()
+        return self(
+            poses,
+            params.unsqueeze(0).expand(k, n, N_PARAMS),
+            kinds_t.unsqueeze(0).expand(k, n),
+            torch.ones(k, n, dtype=torch.bool, device=ref.device),
+            actions[:, :3],
+            actions[:, 3:],
+        )
+
     def _predict_fast(
         self, poses: torch.Tensor, params: torch.Tensor, kinds: torch.Tensor, actions: torch.Tensor
     ) -> torch.Tensor:

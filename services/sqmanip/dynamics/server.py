@@ -223,6 +223,10 @@ class DynamicsServicer(dynamics_pb2_grpc.DynamicsServicer):
 
     def _predict_learned(self, name: str, args: convert.PredictArgs) -> np.ndarray:
         model = self.registry.get(name)
+        if args.scene_poses is not None:
+            return model.predict_batch(
+                args.scene_poses, args.params, args.actions, args.kinds
+            ).numpy()
         out = model.predict(args.poses, args.params, args.actions, args.kinds)
         return out.numpy()
 
@@ -234,7 +238,12 @@ class DynamicsServicer(dynamics_pb2_grpc.DynamicsServicer):
 
                 factory = PhysicsDynamics
             self._physics = factory()
-        out = self._physics.predict(args.poses, args.params, args.actions, args.kinds)
+        if args.scene_poses is not None:
+            out = self._physics.predict_batch(
+                args.scene_poses, args.params, args.actions, args.kinds
+            )
+        else:
+            out = self._physics.predict(args.poses, args.params, args.actions, args.kinds)
         failed = np.asarray(getattr(self._physics, "last_failed", np.zeros(len(args.actions))))
         return np.asarray(out), failed
 

@@ -115,29 +115,14 @@ def predict_scenes(
     """Next states ``(K, N, 4, 4)`` float64 of ``K`` *different* scenes, one action each.
 
     ``poses (K, N, 4, 4)``, ``params (N, 9)``, ``kinds (N,)``, ``actions (K, 6)``. Uses
-    ``dynamics.predict_batch`` when present, SQPD-Net's ``forward`` (one pass over all scenes)
-    for an ``SQPDNet``, else ``dynamics.predict`` once per scene.
+    ``dynamics.predict_batch`` (one call for all scenes: SQPD-Net, the physics baseline, the
+    Dynamics service's client) when present, else ``dynamics.predict`` once per scene.
     """
-    K, N = poses.shape[:2]
+    K = poses.shape[0]
     if K == 0:
         return poses.to(torch.float64).clone()
     if hasattr(dynamics, "predict_batch"):
         return _as64(dynamics.predict_batch(poses, params, actions, kinds))
-    from sqmanip.dynamics.model import SQPDNet
-
-    if isinstance(dynamics, SQPDNet):
-        ref = next(dynamics.parameters())
-        dynamics.eval()
-        with torch.no_grad():
-            out = dynamics(
-                poses.to(ref.dtype),
-                params.to(ref.dtype).expand(K, N, params.shape[-1]),
-                kinds.expand(K, N),
-                torch.ones(K, N, dtype=torch.bool, device=ref.device),
-                actions[:, :3].to(ref.dtype),
-                actions[:, 3:].to(ref.dtype),
-            )
-        return out.to(torch.float64)
     return torch.stack(
         [_as64(dynamics.predict(poses[k], params, actions[k : k + 1], kinds))[0] for k in range(K)]
     )

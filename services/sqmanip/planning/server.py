@@ -76,9 +76,9 @@ class PlannerServiceSettings(BaseSettings):
 
 
 class DeadlineDynamics:
-    """``predict`` of a :class:`RemoteDynamics` bounded by an absolute deadline: each call gets
-    the time left (``time.monotonic()`` based), at most ``cap`` seconds; none left is
-    DEADLINE_EXCEEDED before anything is sent."""
+    """``predict`` and ``predict_batch`` of a :class:`RemoteDynamics` bounded by an absolute
+    deadline: each call gets the time left (``time.monotonic()`` based), at most ``cap``
+    seconds; none left is DEADLINE_EXCEEDED before anything is sent."""
 
     def __init__(
         self, remote: RemoteDynamics, model: str, deadline: float | None, cap: float = 30.0
@@ -97,6 +97,14 @@ class DeadlineDynamics:
     def predict(self, poses, params, actions, kinds=None):
         self.calls += 1
         return self.remote.predict(
+            poses, params, actions, kinds, model=self.model, timeout=self.timeout()
+        )
+
+    def predict_batch(self, poses, params, actions, kinds=None):
+        """K different scenes in one call (``RemoteDynamics.predict_batch``): a horizon step
+        of the MPC is one round trip, not one per sequence."""
+        self.calls += 1
+        return self.remote.predict_batch(
             poses, params, actions, kinds, model=self.model, timeout=self.timeout()
         )
 

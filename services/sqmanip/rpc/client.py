@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import grpc
 
+from sqmanip.errors import ValidationError
 from sqmanip.perception.types import RecognizeRequest, Scene
 from sqmanip.settings import StackSettings, get_settings
 from sqmanip.v1 import (
@@ -293,11 +294,37 @@ class RemoteDynamics(_BlockingClient):
         timeout: float | None = None,
         request_id: str | None = None,
     ):
-        import torch
-
         msg = convert.predict_request_to_proto(
             poses, params, actions, kinds, model=model or self.model
         )
+        return self._predict(msg, timeout, request_id)
+
+    def predict_batch(
+        self,
+        poses,
+        params,
+        actions,
+        kinds=None,
+        *,
+        model: str | None = None,
+        timeout: float | None = None,
+        request_id: str | None = None,
+    ):
+        """``SQPDNet.predict_batch`` over the wire: ``poses (K, N, 4, 4)``, one scene per push,
+        in one call (the MPC's later horizon steps)."""
+        import numpy as np
+
+        scenes = np.asarray(poses.detach().cpu() if hasattr(poses, "detach") else poses)
+        if scenes.ndim != 4 or scenes.shape[0] == 0:
+            raise ValidationError(f"poses: expected shape (K >= 1, N, 4, 4), got {scenes.shape}")
+        msg = convert.predict_request_to_proto(
+            scenes[0], params, actions, kinds, model=model or self.model, scene_poses=scenes
+        )
+        return self._predict(msg, timeout, request_id)
+
+    def _predict(self, msg, timeout: float | None, request_id: str | None):
+        import torch
+
         response = self._call("Predict", msg, timeout, request_id)
         out, self.last_failed = convert.predict_response_from_proto(response)
         self.last_latency_ms = response.latency_ms

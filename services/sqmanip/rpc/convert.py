@@ -1173,9 +1173,11 @@ def predict_request_to_proto(
     kinds: Any = None,
     *,
     model: str = "sqpdnet",
+    scene_poses: Any = None,
 ) -> dynamics_pb.PredictRequest:
     """``poses (N, 4, 4)``, ``params (N, 9)``, ``actions (K, 6)`` rows ``(p, v)``, ``kinds (N,)``
-    (default superellipsoids) -> PredictRequest."""
+    (default superellipsoids) -> PredictRequest. ``scene_poses (K, N, 4, 4)``: push ``k`` acts
+    on its own scene (``poses`` then only has to be valid object poses)."""
     T = _array(poses, "poses", (None, 4, 4))
     n = T.shape[0]
     P = _array(params, "params", (n, 9))
@@ -1192,12 +1194,16 @@ def predict_request_to_proto(
         except ValueError as exc:
             raise ValidationError(f"params[{i}]: {exc}") from None
         objects.append(superquadric_to_proto(sq))
-    return dynamics_pb.PredictRequest(
+    msg = dynamics_pb.PredictRequest(
         objects=objects,
         num_actions=A.shape[0],
         actions=np.ascontiguousarray(A, dtype=F32).tobytes(),
         model=model,
     )
+    if scene_poses is not None:
+        S = _array(scene_poses, "scene_poses", (A.shape[0], n, 4, 4))
+        msg.scene_poses = np.ascontiguousarray(S, dtype=F32).tobytes()
+    return msg
 
 
 @dataclasses.dataclass(frozen=True)
@@ -1213,6 +1219,8 @@ class PredictArgs:
     actions: np.ndarray
     """(K, 6) float32 (the wire precision)."""
     model: str
+    scene_poses: np.ndarray | None = None
+    """(K, N, 4, 4) float64: one scene per push (``predict_batch``), or None."""
 
 
 def predict_request_from_proto(msg: dynamics_pb.PredictRequest) -> PredictArgs:
@@ -1226,7 +1234,12 @@ def predict_request_from_proto(msg: dynamics_pb.PredictRequest) -> PredictArgs:
     poses = np.stack([s.pose for s in sqs]) if n else np.zeros((0, 4, 4))
     params = np.stack([s.params() for s in sqs]) if n else np.zeros((0, 9))
     kinds = np.asarray([s.kind_index for s in sqs], dtype=np.int64)
-    return PredictArgs(poses, params, kinds, actions, msg.model or "sqpdnet")
+    scenes = None
+    if msg.scene_poses:
+        scenes = _plane(msg.scene_poses, F32, (k, n, 4, 4), "scene_poses").astype(np.float64)
+        if not np.isfinite(scenes).all():
+            raise ValidationError("scene_poses: expected finite numbers")
+    return PredictArgs(poses, params, kinds, actions, msg.model or "sqpdnet", scenes)
 
 
 def predict_response_to_proto(

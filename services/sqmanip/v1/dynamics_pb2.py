@@ -25,17 +25,17 @@ _sym_db = _symbol_database.Default()
 from sqmanip.v1 import common_pb2 as sqmanip_dot_v1_dot_common__pb2
 
 
-DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x19sqmanip/v1/dynamics.proto\x12\nsqmanip.v1\x1a\x17sqmanip/v1/common.proto\"p\n\x0ePredictRequest\x12)\n\x07objects\x18\x01 \x03(\x0b\x32\x18.sqmanip.v1.Superquadric\x12\x13\n\x0bnum_actions\x18\x02 \x01(\r\x12\x0f\n\x07\x61\x63tions\x18\x03 \x01(\x0c\x12\r\n\x05model\x18\x04 \x01(\t\"}\n\x0fPredictResponse\x12\x13\n\x0bnum_actions\x18\x01 \x01(\r\x12\x13\n\x0bnum_objects\x18\x02 \x01(\r\x12\r\n\x05poses\x18\x03 \x01(\x0c\x12\r\n\x05model\x18\x04 \x01(\t\x12\x0e\n\x06\x66\x61iled\x18\x05 \x01(\x0c\x12\x12\n\nlatency_ms\x18\x06 \x01(\x01\x32N\n\x08\x44ynamics\x12\x42\n\x07Predict\x12\x1a.sqmanip.v1.PredictRequest\x1a\x1b.sqmanip.v1.PredictResponseb\x06proto3')
+DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x19sqmanip/v1/dynamics.proto\x12\nsqmanip.v1\x1a\x17sqmanip/v1/common.proto\"\x85\x01\n\x0ePredictRequest\x12)\n\x07objects\x18\x01 \x03(\x0b\x32\x18.sqmanip.v1.Superquadric\x12\x13\n\x0bnum_actions\x18\x02 \x01(\r\x12\x0f\n\x07\x61\x63tions\x18\x03 \x01(\x0c\x12\r\n\x05model\x18\x04 \x01(\t\x12\x13\n\x0bscene_poses\x18\x05 \x01(\x0c\"}\n\x0fPredictResponse\x12\x13\n\x0bnum_actions\x18\x01 \x01(\r\x12\x13\n\x0bnum_objects\x18\x02 \x01(\r\x12\r\n\x05poses\x18\x03 \x01(\x0c\x12\r\n\x05model\x18\x04 \x01(\t\x12\x0e\n\x06\x66\x61iled\x18\x05 \x01(\x0c\x12\x12\n\nlatency_ms\x18\x06 \x01(\x01\x32N\n\x08\x44ynamics\x12\x42\n\x07Predict\x12\x1a.sqmanip.v1.PredictRequest\x1a\x1b.sqmanip.v1.PredictResponseb\x06proto3')
 
 _globals = globals()
 _builder.BuildMessageAndEnumDescriptors(DESCRIPTOR, _globals)
 _builder.BuildTopDescriptorsAndMessages(DESCRIPTOR, 'sqmanip.v1.dynamics_pb2', _globals)
 if not _descriptor._USE_C_DESCRIPTORS:
   DESCRIPTOR._loaded_options = None
-  _globals['_PREDICTREQUEST']._serialized_start=66
-  _globals['_PREDICTREQUEST']._serialized_end=178
-  _globals['_PREDICTRESPONSE']._serialized_start=180
-  _globals['_PREDICTRESPONSE']._serialized_end=305
-  _globals['_DYNAMICS']._serialized_start=307
-  _globals['_DYNAMICS']._serialized_end=385
+  _globals['_PREDICTREQUEST']._serialized_start=67
+  _globals['_PREDICTREQUEST']._serialized_end=200
+  _globals['_PREDICTRESPONSE']._serialized_start=202
+  _globals['_PREDICTRESPONSE']._serialized_end=327
+  _globals['_DYNAMICS']._serialized_start=329
+  _globals['_DYNAMICS']._serialized_end=407
 # @@protoc_insertion_point(module_scope)

@@ -8,16 +8,18 @@ from typing import ClassVar as _ClassVar, Optional as _Optional, Union as _Union
 DESCRIPTOR: _descriptor.FileDescriptor
 
 class PredictRequest(_message.Message):
-    __slots__ = ("objects", "num_actions", "actions", "model")
+    __slots__ = ("objects", "num_actions", "actions", "model", "scene_poses")
     OBJECTS_FIELD_NUMBER: _ClassVar[int]
     NUM_ACTIONS_FIELD_NUMBER: _ClassVar[int]
     ACTIONS_FIELD_NUMBER: _ClassVar[int]
     MODEL_FIELD_NUMBER: _ClassVar[int]
+    SCENE_POSES_FIELD_NUMBER: _ClassVar[int]
     objects: _containers.RepeatedCompositeFieldContainer[_common_pb2.Superquadric]
     num_actions: int
     actions: bytes
     model: str
-    def __init__(self, objects: _Optional[_Iterable[_Union[_common_pb2.Superquadric, _Mapping]]] = ..., num_actions: _Optional[int] = ..., actions: _Optional[bytes] = ..., model: _Optional[str] = ...) -> None: ...
+    scene_poses: bytes
+    def __init__(self, objects: _Optional[_Iterable[_Union[_common_pb2.Superquadric, _Mapping]]] = ..., num_actions: _Optional[int] = ..., actions: _Optional[bytes] = ..., model: _Optional[str] = ..., scene_poses: _Optional[bytes] = ...) -> None: ...
 
 class PredictResponse(_message.Message):
     __slots__ = ("num_actions", "num_objects", "poses", "model", "failed", "latency_ms")

@@ -84,3 +84,21 @@ def test_fused_action_head_cache_follows_weight_updates():
     ref = model.predict(poses, params, actions, kinds, fast=False)
     assert (after - before).abs().max().item() > 1e-6
     torch.testing.assert_close(after, ref, rtol=0, atol=1e-12)
+
+
+def test_predict_batch_pushes_each_scene_like_predict_on_that_scene():
+    """K different scenes in one pass (MPC horizon steps) = ``predict`` on each scene alone."""
+    model = _model(torch.float64)
+    poses, params, kinds = _scene(5, 3, torch.float64)
+    actions = random_actions(6, 4, dtype=torch.float64)
+    scenes = torch.stack(
+        [model.predict(poses, params, actions[k : k + 1], kinds)[0] for k in range(4)]
+    )  # four different scenes: each the outcome of one push
+    batch = model.predict_batch(scenes, params, actions, kinds)
+    alone = torch.stack(
+        [model.predict(scenes[k], params, actions[k : k + 1], kinds)[0] for k in range(4)]
+    )
+    assert batch.shape == (4, 3, 4, 4)
+    torch.testing.assert_close(batch, alone, atol=1e-10, rtol=0)
+    with pytest.raises(ValueError, match="actions must have shape"):
+        model.predict_batch(scenes, params, actions[:2], kinds)

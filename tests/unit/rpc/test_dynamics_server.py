@@ -16,7 +16,7 @@ import torch
 from sqmanip.dynamics.config import cpu_config
 from sqmanip.dynamics.model import make_model
 from sqmanip.dynamics.server import DynamicsServicer, DynamicsServiceSettings, registrar
-from sqmanip.errors import PreconditionError
+from sqmanip.errors import PreconditionError, ValidationError
 from sqmanip.gateway.app import create_app
 from sqmanip.gateway.config import GatewaySettings
 from sqmanip.rpc import convert
@@ -104,6 +104,33 @@ async def test_remote_prediction_equals_the_in_process_model(served) -> None:
     assert got.shape == (20, 3, 4, 4)
     np.testing.assert_allclose(got.numpy(), local, atol=2e-6)
     assert np.abs(local - poses).max() > 1e-4  # the random network does move things
+
+
+async def test_remote_predict_batch_rolls_each_scene_in_one_call(served) -> None:
+    """The MPC's later horizon steps: K different scenes, one push each, one round trip."""
+    model, address, stub, _, _ = served
+    poses, params, actions = scene(3, 6, seed=2)
+    scenes = model.predict(poses, params, actions).numpy().astype(np.float64)  # 6 scenes
+    local = model.predict_batch(scenes, params, actions).numpy()
+
+    def remote():
+        with RemoteDynamics(address) as rd:
+            out = rd.predict_batch(scenes, params, actions)
+            with pytest.raises(ValidationError, match="scene_poses"):
+                rd.predict_batch(scenes[:2], params, actions)  # K scenes for K pushes
+            return out
+
+    got = await asyncio.to_thread(remote)
+    assert got.shape == (6, 3, 4, 4)
+    np.testing.assert_allclose(got.numpy(), local, atol=2e-6)
+    shared = model.predict(scenes[0], params, actions).numpy()
+    assert np.abs(local[1:] - shared[1:]).max() > 1e-4  # each push acted on its own scene
+    bad = convert.predict_request_to_proto(poses, params, actions)
+    bad.scene_poses = b"\0" * 12  # not K x N x 4 x 4 float32
+    with pytest.raises(grpc.aio.AioRpcError) as err:
+        await stub.Predict(bad)
+    assert err.value.code() == grpc.StatusCode.INVALID_ARGUMENT
+    assert "scene_poses" in err.value.details()
 
 
 async def test_gateway_predict_returns_k_by_n_poses(served) -> None:
