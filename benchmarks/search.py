@@ -267,6 +267,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-png", action="store_true")
     ap.add_argument("--quick", action="store_true", help="2 episodes, 2 and 4 objects")
+    ap.add_argument("--out", default=OUT, help=f"results file (default {OUT})")
     args = ap.parse_args(argv)
     if args.quick:
         args.episodes, args.objects = 2, [2, 4]
@@ -365,8 +366,8 @@ def main(argv=None) -> int:
         " ms per visible step"
     )
     print(f"episodes: {len(results)} in {wall:.0f} s ({args.workers} workers)")
-    os.makedirs(os.path.dirname(OUT), exist_ok=True)
-    with open(OUT, "w") as fh:
+    os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
+    with open(args.out, "w") as fh:
         json.dump(
             dict(
                 args=vars(args),
@@ -379,7 +380,7 @@ def main(argv=None) -> int:
             fh,
             indent=2,
         )
-    print("wrote", OUT, "and", PNG_DIR if not args.no_png else "(no PNG)")
+    print("wrote", args.out, "and", PNG_DIR if not args.no_png else "(no PNG)")
     return 0
 
 
