@@ -359,41 +359,13 @@ class SQPDNet(nn.Module):
         action axis through :meth:`forward`. Both give the same poses to rounding (~1e-7 in
         float32, ~1e-15 in float64).
         """
-        self.eval()
-        ref = next(self.parameters())
-        poses = torch.as_tensor(poses, dtype=ref.dtype, device=ref.device)
-        params = torch.as_tensor(params, dtype=ref.dtype, device=ref.device)
-        actions = torch.as_tensor(actions, dtype=ref.dtype, device=ref.device)
-        if poses.ndim != 3 or poses.shape[-2:] != (4, 4):
-            raise ValueError(f"poses must have shape (N, 4, 4), got {tuple(poses.shape)}")
-        n = poses.shape[0]
-        if n > self.config.max_objects:
-            raise ValueError(
-                f"poses has {n} objects, more than max_objects={self.config.max_objects}"
-            )
-        if params.shape != (n, N_PARAMS):
-            raise ValueError(f"params must have shape ({n}, {N_PARAMS}), got {tuple(params.shape)}")
-        if actions.ndim != 2 or actions.shape[1] != 6:
-            raise ValueError(f"actions must have shape (K, 6), got {tuple(actions.shape)}")
-        if kinds is None:
-            kinds_t = torch.zeros(n, dtype=torch.long, device=ref.device)
-        else:
-            kinds_t = torch.as_tensor(kinds, dtype=torch.long, device=ref.device)
-            if kinds_t.shape != (n,):
-                raise ValueError(f"kinds must have shape ({n},), got {tuple(kinds_t.shape)}")
-        k = actions.shape[0]
+        poses, params, actions, kinds_t = self._inputs(poses, params, actions, kinds, False)
+        n, k = poses.shape[0], actions.shape[0]
         if k == 0 or n == 0:
             return poses.unsqueeze(0).expand(k, n, 4, 4).clone()
         if fast:
             return self._predict_fast(poses, params, kinds_t, actions)
-        return self(
-            poses.unsqueeze(0).expand(k, n, 4, 4),
-            params.unsqueeze(0).expand(k, n, N_PARAMS),
-            kinds_t.unsqueeze(0).expand(k, n),
-            torch.ones(k, n, dtype=torch.bool, device=ref.device),
-            actions[:, :3],
-            actions[:, 3:],
-        )
+        return self._forward_scenes(poses.unsqueeze(0).expand(k, n, 4, 4), params, kinds_t, actions)
 
     @torch.no_grad()
     def predict_batch(
@@ -409,36 +381,55 @@ class SQPDNet(nn.Module):
         the MPC's later horizon steps, where every sequence has its own predicted scene
         (:func:`sqmanip.planning.mpc.predict_scenes`).
         """
+        poses, params, actions, kinds_t = self._inputs(poses, params, actions, kinds, True)
+        if poses.shape[0] == 0 or poses.shape[1] == 0:
+            return poses.clone()
+        return self._forward_scenes(poses, params, kinds_t, actions)
+
+    def _inputs(self, poses, params, actions, kinds, per_scene: bool):
+        """The arguments of :meth:`predict` (``per_scene=False``: ``poses (N, 4, 4)``) or
+        :meth:`predict_batch` (``poses (K, N, 4, 4)``, one row of ``actions`` per scene) as
+        checked tensors in the model's dtype and device; ``kinds`` defaults to zeros."""
         self.eval()
         ref = next(self.parameters())
         poses = torch.as_tensor(poses, dtype=ref.dtype, device=ref.device)
         params = torch.as_tensor(params, dtype=ref.dtype, device=ref.device)
         actions = torch.as_tensor(actions, dtype=ref.dtype, device=ref.device)
-        if poses.ndim != 4 or poses.shape[-2:] != (4, 4):
-            raise ValueError(f"poses must have shape (K, N, 4, 4), got {tuple(poses.shape)}")
-        k, n = poses.shape[:2]
+        if poses.ndim != (4 if per_scene else 3) or poses.shape[-2:] != (4, 4):
+            want = "(K, N, 4, 4)" if per_scene else "(N, 4, 4)"
+            raise ValueError(f"poses must have shape {want}, got {tuple(poses.shape)}")
+        n = poses.shape[-3]
         if n > self.config.max_objects:
             raise ValueError(
                 f"poses has {n} objects, more than max_objects={self.config.max_objects}"
             )
         if params.shape != (n, N_PARAMS):
             raise ValueError(f"params must have shape ({n}, {N_PARAMS}), got {tuple(params.shape)}")
-        if actions.shape != (k, 6):
-            raise ValueError(f"actions must have shape ({k}, 6), got {tuple(actions.shape)}")
-        kinds_t = (
-            torch.zeros(n, dtype=torch.long, device=ref.device)
-            if kinds is None
-            else torch.as_tensor(kinds, dtype=torch.long, device=ref.device)
-        )
-        if kinds_t.shape != (n,):
-            raise ValueError(f"kinds must have shape ({n},), got {tuple(kinds_t.shape)}")
-        if k == 0 or n == 0:
-            return poses.clone()
+        if per_scene and actions.shape != (poses.shape[0], 6):
+            raise ValueError(
+                f"actions must have shape ({poses.shape[0]}, 6), got {tuple(actions.shape)}"
+            )
+        if actions.ndim != 2 or actions.shape[1] != 6:
+            raise ValueError(f"actions must have shape (K, 6), got {tuple(actions.shape)}")
+        if kinds is None:
+            kinds_t = torch.zeros(n, dtype=torch.long, device=ref.device)
+        else:
+            kinds_t = torch.as_tensor(kinds, dtype=torch.long, device=ref.device)
+            if kinds_t.shape != (n,):
+                raise ValueError(f"kinds must have shape ({n},), got {tuple(kinds_t.shape)}")
+        return poses, params, actions, kinds_t
+
+    def _forward_scenes(
+        self, poses: torch.Tensor, params: torch.Tensor, kinds: torch.Tensor, actions: torch.Tensor
+    ) -> torch.Tensor:
+        """:meth:`forward` on ``K`` scenes ``poses (K, N, 4, 4)`` sharing ``params`` / ``kinds``,
+        all objects real, action ``k`` on scene ``k``."""
+        k, n = poses.shape[:2]
         return self(
             poses,
             params.unsqueeze(0).expand(k, n, N_PARAMS),
-            kinds_t.unsqueeze(0).expand(k, n),
-            torch.ones(k, n, dtype=torch.bool, device=ref.device),
+            kinds.unsqueeze(0).expand(k, n),
+            torch.ones(k, n, dtype=torch.bool, device=poses.device),
             actions[:, :3],
             actions[:, 3:],
         )
