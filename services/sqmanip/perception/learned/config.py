@@ -12,6 +12,7 @@ hold the reduced CPU and full GPU presets per model (:func:`load_preset`).
 from __future__ import annotations
 
 import dataclasses
+import math
 import tomllib
 from pathlib import Path
 from typing import Any, Literal
@@ -148,6 +149,10 @@ class TrainConfig:
     """Training schedule (A.2: Adam, learning rate 1e-3, batch size 16)."""
 
     lr: float = 1e-3
+    # "constant" (A.2) or "cosine": the learning rate falls from ``lr`` to ``lr_final`` over
+    # ``max_steps`` (a short CPU run ends at a low rate instead of mid-way at 1e-3).
+    lr_schedule: str = "constant"
+    lr_final: float = 1e-5
     batch_size: int = 16
     # Upper bounds; whichever of max_steps / epochs / --max-minutes comes first ends training.
     epochs: int = 1000
@@ -175,8 +180,19 @@ class TrainConfig:
                 raise ValueError(f"`{field}` must be positive, got {getattr(self, field)}")
         if self.z_weight < 0:
             raise ValueError(f"`z_weight` must be >= 0, got {self.z_weight}")
+        if self.lr_schedule not in ("constant", "cosine"):
+            raise ValueError(
+                f"`lr_schedule` must be 'constant' or 'cosine', got {self.lr_schedule!r}"
+            )
         if self.device not in ("cpu", "cuda", "auto"):
             raise ValueError(f"`device` must be 'cpu', 'cuda' or 'auto', got {self.device!r}")
+
+    def lr_at(self, step: int) -> float:
+        """Learning rate for optimiser step ``step`` (a function of the step, so resume-safe)."""
+        if self.lr_schedule == "constant":
+            return self.lr
+        t = min(1.0, step / self.max_steps)
+        return self.lr_final + 0.5 * (self.lr - self.lr_final) * (1.0 + math.cos(math.pi * t))
 
 
 def model_config(name: str, **overrides: Any) -> ModelConfig:

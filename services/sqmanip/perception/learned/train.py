@@ -235,6 +235,8 @@ def train(
         j = step % per_epoch
         idx = perm[j * tcfg.batch_size : (j + 1) * tcfg.batch_size]
         batch = train_ds.batch(idx, torch.Generator().manual_seed(tcfg.seed * 1_000_003 + step))
+        for group in opt.param_groups:
+            group["lr"] = tcfg.lr_at(step)
         logs = train_step(model, batch.to(device), opt, tcfg)
         step += 1
         for k, v in logs.items():
@@ -275,7 +277,8 @@ def train(
 
 def _run_cli(args: argparse.Namespace) -> int:
     mcfg, tcfg = load_preset(args.model, args.config)
-    over = {k: getattr(args, k) for k in ("seed", "batch_size", "max_steps", "epochs", "device")}
+    keys = ("seed", "batch_size", "max_steps", "epochs", "device", "lr_schedule")
+    over = {k: getattr(args, k) for k in keys}
     over = {k: v for k, v in over.items() if v is not None}
     if over:
         tcfg = dataclasses.replace(tcfg, **over)
@@ -307,6 +310,8 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
         p.add_argument("--max-steps", type=int, default=None)
         p.add_argument("--epochs", type=int, default=None)
         p.add_argument("--device", choices=["cpu", "cuda", "auto"], default=None)
+        p.add_argument("--lr-schedule", choices=["constant", "cosine"], default=None,
+                       help="cosine: decay the learning rate to lr_final over --max-steps")  # fmt: skip
         p.set_defaults(func=_run_cli, model=name)
 
 

@@ -53,6 +53,23 @@ def test_resume_reproduces_an_uninterrupted_run(tiny_data, tmp_path, dsqnet_run)
         torch.testing.assert_close(a[k], b[k], atol=1e-6, rtol=1e-5, msg=k)
 
 
+def test_cosine_schedule_is_a_function_of_the_step_and_decays_to_lr_final(tiny_data, tmp_path):
+    cos = dataclasses.replace(TCFG, lr_schedule="cosine", lr_final=1e-5)
+    assert cos.lr_at(0) == pytest.approx(3e-3)
+    assert cos.lr_at(12) == pytest.approx((3e-3 + 1e-5) / 2)
+    assert cos.lr_at(24) == pytest.approx(1e-5) and cos.lr_at(99) == pytest.approx(1e-5)
+    assert TCFG.lr_at(20) == TCFG.lr  # constant (A.2) by default
+    with pytest.raises(ValueError, match="lr_schedule"):
+        TrainConfig(lr_schedule="step")
+    mcfg = model_config("dsqnet", n_points=300, **TINY)
+    train("dsqnet", mcfg, dataclasses.replace(cos, max_steps=12), tiny_data, tmp_path,
+          progress=False)  # fmt: skip
+    ckpt = torch.load(tmp_path / "checkpoint.pt", weights_only=True)
+    # the last step of a 12-step cosine ran at its own schedule's rate for step 11
+    lr_last = ckpt["optimizer"]["param_groups"][0]["lr"]
+    assert lr_last == pytest.approx(dataclasses.replace(cos, max_steps=12).lr_at(11))
+
+
 def test_segnet_loss_falls(tiny_data, tmp_path):
     mcfg = model_config("segnet", n_points=256, k=6, edge_widths=(16, 16), global_dim=32,
                         head_widths=(32,), dropout=0.0)  # fmt: skip
