@@ -7,8 +7,8 @@ Scenarios (:mod:`sqmanip.search.scenarios`) are generated once per object count 
 ``--seed, --seed + 1, ...`` (discarded ones skipped) and shared by all methods. Episodes run in
 ``--workers`` processes (one simulator and planner per process, 1 torch thread each) or, with
 ``--ray-address``, as Ray tasks on a cluster (``pip install ray``; the full 180 episodes per cell
-of the thesis). Pushes are predicted with the kinematic push model (no trained SQPD-Net weights
-ship with the repository). Once the target is visible, ``g(x*)`` counts only the grasps the
+of the thesis). Pushes are predicted with the kinematic push model, or with SQPD-Net from a
+checkpoint directory (``--dynamics models/sqpdnet``). Once the target is visible, ``g(x*)`` counts only the grasps the
 simulator's own IK and collision checks accept (:class:`sqmanip.search.execution.SimGraspCheck`),
 and scenarios whose target no such grasp reaches with the shelf alone are discarded (5.5.1). One PNG per shown episode (the first of each cell): camera image,
 f and f*g maps and the chosen action per step, written without a plotting library.
@@ -161,10 +161,22 @@ def _worker_init() -> None:
     torch.set_num_threads(1)
 
 
+def _push_dynamics(name: str, floor_z: float):
+    """``kinematic`` (rigid slide of the pushed object) or an SQPD-Net checkpoint directory,
+    lowered to the shelf floor (:class:`sqmanip.search.SQPDNetDynamics`)."""
+    from sqmanip.search import KinematicPushDynamics, SQPDNetDynamics
+
+    if name == "kinematic":
+        return KinematicPushDynamics()
+    from sqmanip.dynamics.server import load_checkpoint
+
+    return SQPDNetDynamics(load_checkpoint(name), floor_z)
+
+
 def run_episode(task: dict) -> dict:
     """One episode (runs in a worker process or a Ray task)."""
     import torch
-    from sqmanip.search import KinematicPushDynamics, SearchConfig, SearchPlanner
+    from sqmanip.search import SearchConfig, SearchPlanner
     from sqmanip.search.episode import EpisodeRunner
     from sqmanip.search.scenarios import ShelfScenario
     from sqmanip.sim import Simulator
@@ -175,10 +187,14 @@ def run_episode(task: dict) -> dict:
         _STATE["planners"] = {}
     sim = _STATE["sim"]
     shapes, method = METHODS[task["method"]]
-    planner = _STATE["planners"].get(method)
+    dyn_name = task.get("dynamics", "kinematic")
+    planner = _STATE["planners"].get((method, dyn_name))
     if planner is None:
-        planner = SearchPlanner(KinematicPushDynamics(), None, SearchConfig(method=method))
-        _STATE["planners"][method] = planner
+        from sqmanip.search.scenarios import shelf_spec
+
+        dynamics = _push_dynamics(dyn_name, shelf_spec(sim).bottom_z)
+        planner = SearchPlanner(dynamics, None, SearchConfig(method=method))
+        _STATE["planners"][(method, dyn_name)] = planner
     runner = EpisodeRunner(sim, planner, shapes=shapes, keep_images=bool(task.get("png")))
     scenario = ShelfScenario.from_dict(task["scenario"])
     t = time.perf_counter()
@@ -268,6 +284,12 @@ def main(argv=None) -> int:
     ap.add_argument("--no-png", action="store_true")
     ap.add_argument("--quick", action="store_true", help="2 episodes, 2 and 4 objects")
     ap.add_argument("--out", default=OUT, help=f"results file (default {OUT})")
+    ap.add_argument(
+        "--dynamics",
+        default="kinematic",
+        help="push model: 'kinematic' (the pushed object slides, the others stay) or an SQPD-Net "
+        "checkpoint directory such as models/sqpdnet (default kinematic)",
+    )
     args = ap.parse_args(argv)
     if args.quick:
         args.episodes, args.objects = 2, [2, 4]
@@ -296,7 +318,8 @@ def main(argv=None) -> int:
                 png = None
                 if k == 0 and not args.no_png:
                     png = os.path.join(PNG_DIR, f"{m}_{n}obj_seed{sc['seed']}.png")
-                tasks.append(dict(method=m, n_objects=n, scenario=sc, seed=args.seed + k, png=png))
+                tasks.append(dict(method=m, n_objects=n, scenario=sc, seed=args.seed + k, png=png,
+                                  dynamics=args.dynamics))  # fmt: skip
     t1 = time.perf_counter()
     if args.ray_address:
         import ray

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from typing import Literal, Protocol
 
 import numpy as np
@@ -74,19 +75,35 @@ class PushDynamics(Protocol):
 class SQPDNetDynamics:
     """SQPD-Net (Ch. 4) on the shelf floor: the net was trained on a table at ``z = 0`` and is
     SE(2)-equivariant but not equivariant to height, so scene and push are lowered by the floor
-    height before the call and raised after."""
+    height before the call and raised after.
 
-    def __init__(self, model, floor_z: float) -> None:
-        self.model, self.floor_z = model, float(floor_z)
+    The net takes at most ``max_objects`` objects (its training scenes had up to 4): in a
+    larger scene each push acts on the ``max_objects`` objects whose centres are nearest its
+    start point (the pushed one and its neighbours) and the others stay (ours)."""
+
+    def __init__(self, model, floor_z: float, max_objects: int = 4) -> None:
+        self.model, self.floor_z, self.max_objects = model, float(floor_z), int(max_objects)
 
     def predict(self, poses, params, actions, kinds=None) -> torch.Tensor:
         poses = torch.as_tensor(poses).clone()
         actions = torch.as_tensor(actions).clone()
+        params = torch.as_tensor(params)
         poses[:, 2, 3] -= self.floor_z
         actions[:, 2] -= self.floor_z
+        n, m = poses.shape[0], self.max_objects
         with torch.no_grad():
-            out = self.model.predict(poses, params, actions, kinds)
-        out = out.clone()
+            if n <= m:
+                out = self.model.predict(poses, params, actions, kinds).clone()
+            else:
+                kinds_t = None if kinds is None else torch.as_tensor(kinds)
+                d = torch.cdist(actions[:, None, :2], poses[None, :, :2, 3].to(actions.dtype))
+                near = d[:, 0].argsort(-1)[:, :m].sort(-1).values  # (K, m)
+                out = poses.unsqueeze(0).expand(len(actions), n, 4, 4).clone()
+                for sub in torch.unique(near, dim=0):
+                    ks = (near == sub).all(-1).nonzero().squeeze(-1)
+                    k_sub = None if kinds_t is None else kinds_t[sub]
+                    pred = self.model.predict(poses[sub], params[sub], actions[ks], k_sub)
+                    out[ks[:, None], sub[None, :]] = pred.to(out.dtype)
         out[..., 2, 3] += self.floor_z
         return out
 
@@ -187,8 +204,10 @@ class ActionSampler:
         gripper: GripperSpec = PANDA_HAND,
         dtype: torch.dtype = torch.float32,
         grasp_source: GraspSource | None = None,
+        target_height: float = math.inf,
     ) -> None:
         self.shelf, self.config, self.gripper, self.dtype = shelf, config, gripper, dtype
+        self.target_height = float(target_height)
         self.grasp_source = grasp_source or GraspSource(dtype=dtype)
         self._local: dict[bytes, torch.Tensor] = {}
         self.boards = Obstacles.from_parts(shelf.boxes(), dtype)
@@ -229,8 +248,15 @@ class ActionSampler:
 
     # --- push ------------------------------------------------------------------------------
 
-    def push_poses(self, scene: SceneState, i: int) -> list[tuple[int, np.ndarray, np.ndarray]]:
-        """Collision-free ``(direction, gripper pose, start point)`` for pushing object ``i``."""
+    def push_poses(
+        self, scene: SceneState, i: int, keep_out: torch.Tensor | None = None
+    ) -> list[tuple[int, np.ndarray, np.ndarray]]:
+        """Collision-free ``(direction, gripper pose, start point)`` for pushing object ``i``.
+
+        With ``keep_out (Q, 3)`` discs where the target may stand, a pose is also dropped when
+        the closed hand, moving in from the shelf front along +x to it (the simulator's
+        pre-push path), passes through a disc below the target's top: the pusher would knock
+        the hidden target along instead of the object (ours)."""
         cfg, g = self.config, self.gripper
         c = scene.poses[i, :3, 3].double().numpy()
         half = world_half_extents(scene)[i].double().numpy()
@@ -248,8 +274,29 @@ class ActionSampler:
             T[:3, 3] = tcp
             out.append((direction, T, tcp))
             poses.append(T)
-        free = self._free(self._others(scene, i), self.closed, torch.as_tensor(np.stack(poses)))
+        poses_t = torch.as_tensor(np.stack(poses))
+        free = self._free(self._others(scene, i), self.closed, poses_t)
+        if keep_out is not None and keep_out.numel():
+            free &= ~self._touches_keep_out(self.closed, poses_t, keep_out, sweep=True)
         return [o for o, ok in zip(out, free.tolist(), strict=True) if ok]
+
+    def _touches_keep_out(
+        self, pts, poses: torch.Tensor, keep_out: torch.Tensor, sweep: bool = False
+    ) -> torch.Tensor:
+        """``(P,)``: gripper points ``pts`` (:func:`cluster_points`) at ``poses (P, 4, 4)`` come
+        into a keep-out disc ``(x, y, r)`` below the target's top; with ``sweep``, anywhere on
+        their way in from the shelf front along +x (the pusher's approach)."""
+        local = pts[0].reshape(-1, 3).double()
+        world = local @ poses[:, :3, :3].double().transpose(-1, -2) + poses[:, None, :3, 3].double()
+        low = (world[..., 2] < self.shelf.bottom_z + self.target_height)[..., None]  # (P, J, 1)
+        ko = keep_out.double()
+        dx = world[..., None, 0] - ko[:, 0]  # (P, J, Q)
+        dy = world[..., None, 1] - ko[:, 1]
+        if sweep:  # the point's path along x ends past the disc's front
+            inside = (dy.abs() < ko[:, 2]) & (dx > -ko[:, 2])
+        else:
+            inside = dx * dx + dy * dy < ko[:, 2] ** 2
+        return (inside & low).flatten(1).any(-1)
 
     # --- pick and place --------------------------------------------------------------------
 
@@ -277,12 +324,18 @@ class ActionSampler:
         cand[:, :3, 3] += T[:3, 3].to(cand.dtype)
         return cand
 
-    def grasps(self, scene: SceneState, i: int) -> torch.Tensor:
-        """Collision-free C.3 grasps ``(G, 4, 4)`` of object ``i`` (afterimage test)."""
+    def grasps(
+        self, scene: SceneState, i: int, keep_out: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """Collision-free C.3 grasps ``(G, 4, 4)`` of object ``i`` (afterimage test); with
+        ``keep_out`` discs where the target may stand, also those whose afterimage stays out
+        of them (fingers reaching past the object would drag a target behind it along)."""
         cand = self.candidate_grasps(scene, i)
         if cand.shape[0] == 0:
             return cand
         free = self._free(self._others(scene, i), self.after, cand)
+        if keep_out is not None and keep_out.numel():
+            free &= ~self._touches_keep_out(self.after, cand, keep_out)
         return cand[free]
 
     def place_spots(
@@ -349,27 +402,33 @@ class ActionSampler:
         return [d for d in ds if d - self.config.push_gap <= first]
 
     def candidates(
-        self, scene: SceneState, keep_out: torch.Tensor | None, push_keep_out: bool = True
+        self,
+        scene: SceneState,
+        keep_out: torch.Tensor | None,
+        push_keep_out: bool = True,
+        pick_ok: Callable[[torch.Tensor], bool] | None = None,
     ):
         """``I_p`` and ``I_g`` with their valid pushes / (grasps, spots) per object; a push is
         ``(direction, gripper pose, start, lengths)``. ``push_keep_out=False`` lets pushes
-        sweep where the target may stand (the fallback when nothing else is left)."""
+        sweep where the target may stand (the fallback when nothing else is left). An object's
+        pick uses its first collision-free grasp with a free spot that ``pick_ok`` (the robot's
+        own IK and arm checks, when known) accepts."""
         pushes, picks = {}, {}
         push_out = keep_out if push_keep_out else None
         for i in range(len(scene)):
             if self.config.actions in ("both", "push"):
                 p = [
                     (*q, ds)
-                    for q in self.push_poses(scene, i)
+                    for q in self.push_poses(scene, i, push_out)
                     if (ds := self.push_distances(scene, i, q[0], push_out))
                 ]
                 if p:
                     pushes[i] = p
             if self.config.actions in ("both", "pick_and_place"):
-                gr = self.grasps(scene, i)
+                gr = self.grasps(scene, i, keep_out)
                 for k in range(gr.shape[0]):
                     spots = self.place_spots(scene, i, gr[k], keep_out)
-                    if spots.shape[0]:
+                    if spots.shape[0] and (pick_ok is None or pick_ok(gr[k])):
                         picks[i] = (gr[k], spots)
                         break
         return pushes, picks

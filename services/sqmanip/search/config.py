@@ -89,6 +89,11 @@ class SearchConfig:
     push_tilt_deg: float = 30.0
     push_gap: float = 0.01
     push_distances: tuple[float, ...] = (0.05, 0.10, 0.15)
+    keep_out_margin: float = 0.01
+    """Where the target may stand (``f = 1``) is kept clear of pushed objects, the pusher and
+    placed objects with this margin (m) beyond the target's radius: the target stands anywhere
+    within half a grid cell of a pose with ``f = 1``, and a push that grazes it shoves it
+    deeper, out of every grasp (ours)."""
     place_resolution: float = 0.03
     """Spacing of the candidate place spots on the floor (m) (ours)."""
     max_place_spots: int = 64
@@ -115,6 +120,10 @@ class SearchConfig:
         if not (isinstance(self.found_pixels, int) and self.found_pixels >= 0):
             raise ValidationError(
                 f"found_pixels must be an integer >= 0, got {self.found_pixels!r}"
+            )
+        if not (math.isfinite(self.keep_out_margin) and self.keep_out_margin >= 0):
+            raise ValidationError(
+                f"keep_out_margin must be finite and >= 0, got {self.keep_out_margin!r}"
             )
         if not (math.isfinite(self.seen_margin) and self.seen_margin >= 0):
             raise ValidationError(f"seen_margin must be finite and >= 0, got {self.seen_margin!r}")

@@ -18,7 +18,8 @@ or from the side; links 5-6 hit a neighbour at the pre-grasp pose). With an in-p
 simulator the runner therefore hands the planner a :class:`SimGraspCheck` -- the simulator's own
 IK (the same two deterministic seeds it tries first, so the same joint angles) and collision
 queries, without moving the robot -- and ``g(x*)`` counts only the grasps that pass; the
-executed grasp is one of them. The planner's grasp poses put the TCP
+executed grasp is one of them. A pick-and-place of a surrounding object likewise uses a grasp
+that passes (with the objects). The planner's grasp poses put the TCP
 ``GripperSpec.flange_offset`` in front of the flange, the simulator's 1.8 mm further
 (:func:`sqmanip.grasping.reachability.sim_tool_pose` converts). A remote simulator (the
 service) has no such query: there the planner's ``g`` decides and the simulator may refuse.
@@ -218,7 +219,7 @@ class EpisodeRunner:
                     bool(refused)
                     and (_action_key(a, "") in refused or _action_key(a, "grasp") in refused)
                 ),
-                grasp_check=self.grasp_check if visible else None,
+                grasp_check=self.grasp_check,
             )
             times.update({f"plan_{k}": v for k, v in d.timings_ms.items()})
             graspable = d.kind == "grasp"

@@ -97,7 +97,13 @@ class SearchPlanner:
             grid = make_pose_grid(shelf, target, cfg.resolution, cfg.n_theta)
             ex = ExistenceModel(shelf, target, grid, camera, cfg)
             gm = GraspabilityModel(shelf, target, grid, cfg, self.gripper, self.grasp_source)
-            sampler = ActionSampler(shelf, cfg, self.gripper, grasp_source=self.grasp_source)
+            sampler = ActionSampler(
+                shelf,
+                cfg,
+                self.gripper,
+                grasp_source=self.grasp_source,
+                target_height=2 * target.size[2],
+            )
             self._models[key] = (grid, FGEvaluator(ex, gm, cfg), sampler)
         return self._models[key]
 
@@ -119,8 +125,9 @@ class SearchPlanner:
 
         Sampled actions the robot cannot execute are dropped (:meth:`feasible`).
 
-        ``grasp_check`` (optional, used once the target is visible at ``x*``): ``g(x*)`` counts
-        only the C.3 candidates the robot can execute. The afterimage of the gripper and links
+        ``grasp_check`` (optional): the robot's own IK and arm checks of a grasp. A pick of a
+        surrounding object uses only a grasp it accepts (with the objects). Once the target is
+        visible at ``x*``, ``g(x*)`` counts only the C.3 candidates the robot can execute. The afterimage of the gripper and links
         6-7 (C.3) misses the rest of the arm and the IK: the check with ``objects=True`` filters
         the candidates for the current scene (and so decides whether to grasp now), the one
         with ``objects=False`` those of the predicted scenes (the arm-shelf part does not move).
@@ -195,18 +202,22 @@ class SearchPlanner:
                 )
 
         t = time.perf_counter()
-        keep_out = torch.cat(
-            [
-                grid.xy[root.f.bool()],
-                torch.full((int(root.f.sum()), 1), target_spec.horizontal_radius),
-            ],
-            -1,
-        )
+        keep_out = self._keep_out(grid.xy, root.f, target_spec)
+        pick_ok = None
+        if grasp_check is not None:
+            checked: dict[bytes, bool] = {}
+
+            def pick_ok(T: torch.Tensor) -> bool:
+                key = T.double().numpy().tobytes()
+                if key not in checked:
+                    checked[key] = bool(grasp_check(T.double().numpy()[None], True)[0])
+                return checked[key]
+
         first: list[Action] = []
         for push_keep_out in (True, False):
             # pushes that would sweep where the target may stand come last: only when nothing
             # else is left (the target there would be shoved along, see push_distances)
-            cands = sampler.candidates(scene, keep_out, push_keep_out)
+            cands = sampler.candidates(scene, keep_out, push_keep_out, pick_ok)
             first = sampler.sample(scene, rng, cfg.n_sequences, keep_out, cands)
             first = [
                 a for a in first if self.feasible(a, shelf) and (reject is None or not reject(a))
@@ -268,19 +279,20 @@ class SearchPlanner:
                 f_prev = m.f
                 if step + 1 == cfg.horizon:
                     break
-                keep_out = torch.cat(
-                    [
-                        grid.xy[m.f.bool()],
-                        torch.full((int(m.f.sum()), 1), ev.em.target.horizontal_radius),
-                    ],
-                    -1,
-                )
+                keep_out = self._keep_out(grid.xy, m.f, ev.em.target)
                 nxt = self._one_action(state, sampler, rng, keep_out)
                 if nxt is None:
                     break
                 state = apply_actions(state, [nxt], self.dynamics, shelf)[0]
             costs[s] = sequence_cost(J, cfg.gamma)
         return costs
+
+    def _keep_out(self, xy: torch.Tensor, f: torch.Tensor, target: TargetSpec) -> torch.Tensor:
+        """``(Q, 3)`` discs ``(x, y, r)`` where the target may stand (``f = 1``), widened by
+        ``keep_out_margin``."""
+        on = f.bool()
+        r = target.horizontal_radius + self.config.keep_out_margin
+        return torch.cat([xy[on], torch.full((int(on.sum()), 1), r, dtype=xy.dtype)], -1)
 
     def feasible(self, a: Action, shelf: ShelfSpec) -> bool:
         """Execution limits of the robot in the shelf that the sampler does not model: a push
@@ -319,7 +331,7 @@ class SearchPlanner:
             i = int(rng.integers(len(state)))
             kind = kinds[int(rng.integers(len(kinds)))]
             if kind == "push":
-                p = sampler.push_poses(state, i)
+                p = sampler.push_poses(state, i, keep_out)
                 if p:
                     direction, T, tcp = p[int(rng.integers(len(p)))]
                     ds = sampler.push_distances(state, i, direction, keep_out)
@@ -330,7 +342,7 @@ class SearchPlanner:
                     if self.feasible(a, self._shelf):
                         return a
             else:
-                gr = sampler.grasps(state, i)
+                gr = sampler.grasps(state, i, keep_out)
                 if gr.shape[0]:
                     spots = sampler.place_spots(state, i, gr[0], keep_out)
                     if spots.shape[0]:

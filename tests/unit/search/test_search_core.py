@@ -137,3 +137,61 @@ def test_pushes_stop_short_of_where_the_target_may_stand():
     beside = torch.tensor([[0.70, 0.10, 0.025]])  # behind the strip the box sweeps
     assert sampler.push_distances(scene, 0, 1, beside) == [0.05, 0.10, 0.15]
     assert sampler.push_distances(scene, 0, 1, None) == [0.05, 0.10, 0.15]
+
+
+def test_pusher_path_keeps_out_of_where_the_target_may_stand():
+    """The closed hand moves in from the shelf front to the push start beside the object: a
+    pose whose path crosses a disc where f = 1 (below the target's top) is dropped, the other
+    direction and discs off the path are not, and a target lower than the hand is passed over."""
+    from sqmanip.search import ActionSampler
+
+    scene = SceneState.from_objects([box(0.60, 0.0, 0.06, 0.06, 0.15)])
+    sampler = ActionSampler(SHELF, CFG, target_height=0.12)
+    both = [p[0] for p in sampler.push_poses(scene, 0)]
+    assert both == [1, -1]
+    beside = torch.tensor([[0.62, 0.07, 0.025]])  # where the pusher of a push to -y goes
+    assert [p[0] for p in sampler.push_poses(scene, 0, beside)] == [1]
+    far = torch.tensor([[0.70, 0.30, 0.025]])
+    assert [p[0] for p in sampler.push_poses(scene, 0, far)] == [1, -1]
+    low = ActionSampler(SHELF, CFG, target_height=0.01)
+    assert [p[0] for p in low.push_poses(scene, 0, beside)] == [1, -1]
+
+
+def test_sqpdnet_dynamics_in_a_scene_larger_than_the_net_takes():
+    """The shipped SQPD-Net takes 4 objects: in a 6-object shelf scene each push moves only
+    the 4 objects nearest its start, exactly as the net predicts them alone; the rest stay."""
+    from pathlib import Path
+
+    from sqmanip.dynamics.server import load_checkpoint
+    from sqmanip.search import SQPDNetDynamics
+
+    torch.set_num_threads(1)
+    net = load_checkpoint(Path(__file__).parents[3] / "models" / "sqpdnet")
+    objs = [box(0.60, y, 0.05, 0.05, 0.10) for y in (-0.24, -0.15, -0.06, 0.03, 0.12, 0.21)]
+    scene = SceneState.from_objects(objs)
+    z = SHELF.bottom_z + 0.05
+    push = torch.tensor([[0.60, -0.30, z, 0.0, 0.10, 0.0]], dtype=scene.poses.dtype)
+    dyn = SQPDNetDynamics(net, SHELF.bottom_z)
+    out = dyn.predict(scene.poses, scene.params, push, scene.kinds)
+    assert out.shape == (1, 6, 4, 4)
+    assert torch.equal(out[0, 4:], scene.poses[4:])  # beyond the 4 nearest: unchanged
+    alone = SQPDNetDynamics(net, SHELF.bottom_z).predict(
+        scene.poses[:4], scene.params[:4], push, scene.kinds[:4]
+    )
+    assert torch.allclose(out[0, :4], alone[0], atol=1e-6)
+    assert float((out[0, 0, :3, 3] - scene.poses[0, :3, 3]).norm()) > 0.01  # the pushed box moved
+
+
+def test_pick_grasps_keep_the_fingers_out_of_where_the_target_may_stand():
+    """A grasp whose fingers (or their 30 cm approach) come into a disc where f = 1 would drag
+    the target along: it is dropped; a disc away from the hand drops none."""
+    from sqmanip.search import ActionSampler
+
+    scene = SceneState.from_objects([box(0.60, 0.0, 0.04, 0.06, 0.15)])
+    sampler = ActionSampler(SHELF, CFG, target_height=0.12)
+    n_all = sampler.grasps(scene, 0).shape[0]
+    assert n_all >= 4
+    beside = torch.tensor([[0.60, 0.07, 0.035]])  # where a finger closes on the box's side
+    assert sampler.grasps(scene, 0, beside).shape[0] < n_all / 2
+    far = torch.tensor([[0.70, 0.30, 0.035]])
+    assert sampler.grasps(scene, 0, far).shape[0] == n_all
