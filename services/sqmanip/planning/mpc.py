@@ -6,7 +6,8 @@ One :meth:`PushMPC.plan` call is one MPC step (4.4.5 with ``r = 0`` and a termin
    most 160 per object) on the recognized shapes; those whose closed gripper at the start pose
    penetrates the table or any object are rejected (gripper points vs. superquadric implicit
    functions, B.5.12, all candidates in one batch); ``K`` (100) first pushes are drawn from the
-   rest as 4.5 draws (object uniformly, then a candidate uniformly), without replacement;
+   rest as 4.5 draws (object uniformly, then a candidate uniformly), without replacement -- for
+   the horizon-1 tasks in ``score_every_single_push`` (moving), every free candidate is scored;
 2. **roll out** every sequence with ONE batched dynamics call per horizon step. Step 1 shares
    the observed scene, so it is ``dynamics.predict(poses, params, actions)`` (SQPD-Net's fast
    path). Later actions (horizon 3 for grasping) must be valid pushes *in each sequence's own
@@ -378,7 +379,10 @@ class PushMPC:
         n_drawn = cand_a.shape[0]
         free = self._start_free(scene, cand_a[None], scene.poses[None])[0].numpy()
         free_idx = np.flatnonzero(free)
-        pick = free_idx[draw_uniform_per_object(cand_o[free_idx], K, rng, replace=False)]
+        if H == 1 and task.name in cfg.score_every_single_push:
+            pick = free_idx
+        else:
+            pick = free_idx[draw_uniform_per_object(cand_o[free_idx], K, rng, replace=False)]
         first = cand_a[pick]
         first_obj = torch.as_tensor(cand_o[pick], dtype=torch.long)
         S = first.shape[0]

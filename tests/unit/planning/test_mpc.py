@@ -234,3 +234,23 @@ def test_single_pushes_when_no_full_sequence_stays_on_the_table():
     assert res.action is not None
     assert res.sequence.shape == (1, 6)  # configured horizon 3, planned with horizon 1
     assert res.predicted_next[0, 1, 3] == pytest.approx(0.275)
+
+
+def test_horizon_one_scores_every_free_push_not_only_k():
+    """For the tasks named in ``score_every_single_push`` one-push steps score all admissible
+    candidates (cheap, and K draws miss the best one); the others keep the K draws of B.4."""
+    objs = four_boxes()
+    goal = objs[0][0][0].pose.copy()
+    goal[0, 3] -= 0.10
+    task = MovingTask({0: goal})
+    every = PushMPC(PusherDynamics(), config=MPCConfig(n_sequences=5)).plan(objs, task, 0)
+    free = every.n_sampled - every.n_rejected_start
+    assert every.n_candidates == free > 5
+    off = MPCConfig(n_sequences=5, score_every_single_push=())
+    five = PushMPC(PusherDynamics(), config=off).plan(objs, task, 0)
+    assert five.n_candidates == 5
+    assert every.cost <= five.cost  # the best of all is at least as good as the best of five
+    sing = PushMPC(PusherDynamics(), config=MPCConfig(n_sequences=5)).plan(
+        objs, SingulationTask(), 0
+    )
+    assert sing.n_candidates == 5
