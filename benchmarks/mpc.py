@@ -110,7 +110,9 @@ def _runner(method: str, model_dir: str | None, k_seq: int, max_steps: int, reac
         from sqmanip.planning.mpc import ROBOT_BASE
 
         reachability = WorkspaceReachability(base=ROBOT_BASE)
-    planner = sim_planner(dyn, k_seq, reachability=reachability)
+    # the physics rows re-simulate every push: K draws, never every push (their K is the cost)
+    every = {} if method == "R-SQPD-Net" else {"score_every_single_push": ()}
+    planner = sim_planner(dyn, k_seq, reachability=reachability, **every)
     runner = EpisodeRunner(sim, objects, planner, max_steps=max_steps)
     _CACHE[key] = runner
     return runner

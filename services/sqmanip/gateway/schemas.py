@@ -778,7 +778,9 @@ class TaskIn(BaseModel):
 class MPCOptionsIn(BaseModel):
     model_config = ConfigDict(extra="forbid")
     num_sequences: UInt32 | None = Field(
-        None, description="K sampled sequences (default 100; at most 100 with 'physics')."
+        None,
+        description="K sampled sequences (default 100; at most 100 with 'physics'). A moving "
+        "step with SQPD-Net (horizon 1) scores every admissible push instead.",
     )
     horizon: UInt32 | None = Field(None, description="Default: 1, or 3 for grasping.")
     seed: Int64 | None = None

@@ -177,7 +177,8 @@ class MPCConfig:
     10 ms. It helps moving (its cost sums every object's distance): 37/40 -> 39/40 over
     scenario seeds 0 and 1; it hurts singulation (its cost is the closest pair only, flat over
     most pushes, so the best-predicted of all pushes is mostly the model's error): 36/40 ->
-    32/40. Interactive moving: 3/10 either way (ours)."""
+    32/40. Interactive moving: 3/10 either way. The physics baseline re-simulates every push,
+    so the planner service and ``benchmarks.mpc`` give it ``()`` (K draws) (ours)."""
     horizon: int | None = None
     """Actions per sequence; None takes the task's default (1, or 3 for grasping, B.4)."""
     table: TableSpec = dataclasses.field(default_factory=TableSpec)
