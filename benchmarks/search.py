@@ -8,10 +8,12 @@ Scenarios (:mod:`sqmanip.search.scenarios`) are generated once per object count 
 ``--workers`` processes (one simulator and planner per process, 1 torch thread each) or, with
 ``--ray-address``, as Ray tasks on a cluster (``pip install ray``; the full 180 episodes per cell
 of the thesis). Pushes are predicted with the kinematic push model, or with SQPD-Net from a
-checkpoint directory (``--dynamics models/sqpdnet``). Once the target is visible, ``g(x*)`` counts only the grasps the
-simulator's own IK and collision checks accept (:class:`sqmanip.search.execution.SimGraspCheck`),
-and scenarios whose target no such grasp reaches with the shelf alone are discarded (5.5.1). One PNG per shown episode (the first of each cell): camera image,
-f and f*g maps and the chosen action per step, written without a plotting library.
+checkpoint directory (``--dynamics models/sqpdnet``). Once the target is visible, ``g(x*)``
+counts only the grasps the simulator's own IK and collision checks accept
+(:class:`sqmanip.search.execution.SimGraspCheck`), and scenarios whose target no such grasp
+reaches with the shelf alone are discarded (5.5.1). One PNG per shown episode (the first of each
+cell): camera image, f and f*g maps and the chosen action per step, written without a plotting
+library.
 
     python -m benchmarks.search [--episodes N] [--objects 2 4 6 8] [--workers W] [--quick]
 """

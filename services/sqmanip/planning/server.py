@@ -269,18 +269,13 @@ class PlannerServicer(planner_pb2_grpc.PlannerServicer):
         return k
 
     def planner(self, dynamics, options: convert.MPCArgs):
-        from .config import MPCConfig
         from .episode import sim_planner
 
         k = self._check_physics(options)
         # the physics model re-simulates every push: it scores K draws, never every push
-        every = () if options.dynamics_model == "physics" else MPCConfig.score_every_single_push
+        every = {"score_every_single_push": ()} if options.dynamics_model == "physics" else {}
         return sim_planner(
-            dynamics,
-            k or 100,
-            reachability=self.reachability,
-            horizon=options.horizon,
-            score_every_single_push=every,
+            dynamics, k or 100, reachability=self.reachability, horizon=options.horizon, **every
         )
 
     def _plan(self, args: convert.PlanArgs, deadline: float | None):

@@ -151,7 +151,7 @@ class TrainConfig:
     lr: float = 1e-3
     # "constant" (A.2) or "cosine": the learning rate falls from ``lr`` to ``lr_final`` over
     # ``max_steps`` (a short CPU run ends at a low rate instead of mid-way at 1e-3).
-    lr_schedule: str = "constant"
+    lr_schedule: Literal["constant", "cosine"] = "constant"
     lr_final: float = 1e-5
     batch_size: int = 16
     # Upper bounds; whichever of max_steps / epochs / --max-minutes comes first ends training.
