@@ -12,8 +12,10 @@ edges, nodes with at least two concave edges are removed as *seam* nodes; the re
 components (of at least ``min_cluster_points`` points) are seeds and every seam node or small
 fragment joins its nearest seed node. Coplanar flush faces (two
 boxes of equal height pushed together) have no concave seam and stay one segment, unless
-colours are given and differ: an edge whose ends differ in chromaticity is cut like a concave
-one (objects of different colours that touch, the usual case in clutter).
+colours are given and differ: an edge whose ends differ in chromaticity counts as a cut edge for
+seam nodes and is also removed itself (objects of different colours that touch, the usual case in
+clutter). Colour does not smear across a seam the way normals do, and two objects joined by only a
+few edges have no node with two cut edges.
 """
 
 from __future__ import annotations
@@ -59,7 +61,7 @@ def _split_concave(
     """Labels ``(M,)`` after removing seam nodes (>= 2 cut edges) and regrowing.
 
     An edge is cut where the surface is concave or where ``colour_cut`` (edges,) says the
-    colour changes. Components of the graph without seam nodes that weigh at least
+    colour changes; colour edges are also dropped from the graph themselves. Components of the graph without seam nodes that weigh at least
     ``min_cluster_points`` points are seeds; every other node (seam, fragment) joins the seed of
     its nearest seed node.
     """
@@ -68,7 +70,7 @@ def _split_concave(
     conv = (dn * d).sum(1) / np.linalg.norm(d, axis=1).clip(1e-12)
     cut = (conv < -settings.concavity_tolerance) | colour_cut
     seam = np.bincount(edges[cut].ravel(), minlength=len(x)) >= 2
-    keep = ~seam[edges[:, 0]] & ~seam[edges[:, 1]]
+    keep = ~seam[edges[:, 0]] & ~seam[edges[:, 1]] & ~colour_cut
     lab = _components(len(x), edges[keep])
     w = np.bincount(lab, weights=weight * ~seam)
     seed = ~seam & (w[lab] >= settings.min_cluster_points)

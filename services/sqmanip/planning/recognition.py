@@ -53,10 +53,10 @@ from the home pose (0.72 m up) it sees 0.61 m either side of the workspace centr
 table's side edges (0.40 m), where a box pushed over the edge overhangs."""
 
 FIRST_NEW_ID = 1000
+"""Ids given to recognized objects that match no tracked object."""
 ELIMINATION_GATES = 3.0
 """A single unseen tracked object takes the single unmatched recognized object up to this many
 gates away (a push moved it farther than the model predicted)."""
-"""Ids given to recognized objects that match no tracked object."""
 
 
 def object_centre(parts: Sequence[Superquadric]) -> np.ndarray:

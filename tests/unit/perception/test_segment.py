@@ -73,3 +73,28 @@ def test_segments_from_labels_ignores_background_and_tiny_labels():
     labels = np.array([-1, 0, 0, 2, 2, 2, -1, 5])
     segs = segments_from_labels(labels, min_points=2)
     assert [s.tolist() for s in segs] == [[1, 2], [3, 4, 5]]
+
+
+def test_objects_of_different_colours_joined_by_a_few_edges_are_split():
+    """A red and a blue can top 10 cm apart, joined by a sparse chain of points (a strip of side
+    wall seen between them) whose colour changes halfway: no node has the two cut edges that
+    make a seam node, so only cutting colour edges outright separates them (a red can once
+    vanished into its blue neighbour this way in a grasping-clutter scene)."""
+    rng = np.random.default_rng(3)
+
+    def can_top(cx: float, n: int = 3000) -> np.ndarray:
+        r = 0.034 * np.sqrt(rng.uniform(size=n))
+        t = rng.uniform(0, 2 * np.pi, n)
+        return np.column_stack([cx + r * np.cos(t), r * np.sin(t), np.full(n, 0.10)])
+
+    # 0.037, 0.046, 0.055, 0.064: 9 mm apart (under the 12 mm clustering radius), red then blue
+    chain = np.column_stack([0.037 + 0.009 * np.arange(4), np.zeros(4), np.full(4, 0.10)])
+    pts = np.concatenate([can_top(0.0), chain, can_top(0.10)])
+    red, blue = [0.7, 0.08, 0.08], [0.13, 0.26, 0.6]
+    colors = np.array([red] * 3002 + [blue] * 3002)
+    eye = np.array([0.05, 0.0, 0.7])
+    assert len(cluster(pts, PerceptionSettings(split_touching=False), eye)) == 1
+    segs = cluster(pts, PerceptionSettings(), eye, colors)
+    assert len(segs) == 2
+    is_red = np.arange(len(pts)) < 3002
+    assert all(is_red[s].all() or not is_red[s].any() for s in segs)
