@@ -55,8 +55,13 @@ class SQPDNetConfig:
     composition: Composition = "object"
     # Shape alignment of 4.6 (z axis up, x axis along the push; sizes permuted to match).
     shape_alignment: bool = True
-    # |e1 - e2| below this lets alignment pick any axis as z (4.6: "< 0.01").
-    alignment_e_tol: float = 0.01
+    # |e1 - e2| below this lets alignment pick any axis as z. 4.6 says "< 0.01", for its
+    # network's recognitions; the optimization fitter's box-like parts differ by more (the
+    # sugar box lying flat: e = (0.39, 0.35), fitted with its x axis vertical, kept sideways
+    # and mispredicted). Training data is unaffected: ground-truth boxes have e1 = e2, cylinders
+    # differ by 0.8. With recognition, scenario seeds 0-2: singulation 54/60 -> 58/60, grasping
+    # clutter 24/30 -> 28/30 (ours).
+    alignment_e_tol: float = 0.3
 
     # Loss (4.3.3): ||t' - t^'||^2 + alpha d^2(I, R'^-1 R^') with d = 1 - cos (B.3.11).
     alpha: float = 0.1

@@ -204,7 +204,8 @@ def upright_frames(poses: torch.Tensor, params: torch.Tensor) -> tuple[torch.Ten
 
     ``poses (..., 4, 4)``, ``params (..., 9)`` (undeformed superellipsoids). The fitter returns
     box-like objects with any axis order (mostly x vertical), while SQPD-Net was trained on
-    upright frames (z up), and the 4.6 shape alignment only moves z when ``e1 == e2`` exactly.
+    upright frames (z up), and the 4.6 shape alignment only moves z when ``e1`` and ``e2`` are
+    within ``SQPDNetConfig.alignment_e_tol`` (0.3).
     The pushing objects stand upright, so the vertical axis becomes z (sign up, cyclic order,
     sizes follow their axes). When z moves, ``e1`` and ``e2`` swap: the footprint (the section
     across the new z) had exponent ``e1``; exact for ``e1 == e2``, the common box-like case.

@@ -141,6 +141,27 @@ def test_alignment_describes_the_same_solid_with_z_up_and_x_along_push():
     torch.testing.assert_close(f_new, f_old, rtol=1e-9, atol=1e-12)
 
 
+def test_a_fitted_box_lying_on_its_side_is_realigned_with_z_up():
+    """The fitter returned the sugar box lying flat with its x axis vertical and e = (0.39,
+    0.35): within the default tolerance (0.3) its z axis becomes the vertical one; a cylinder
+    (e = (0.2, 1.0)) keeps its own z axis."""
+    from sqmanip.dynamics.config import SQPDNetConfig
+
+    tol = SQPDNetConfig().alignment_e_tol
+    T = torch.eye(4, dtype=torch.float64)
+    T[:3, :3] = torch.tensor([[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])  # x up
+    poses = T.expand(1, 2, 4, 4).clone()
+    params = torch.tensor(
+        [[0.019, 0.102, 0.054, 0.39, 0.35, 0, 0, 0, 0], [0.05, 0.03, 0.03, 0.2, 1.0, 0, 0, 0, 0]],
+        dtype=torch.float64,
+    )[None]
+    v = torch.tensor([[1.0, 0.0, 0.0]], dtype=torch.float64)
+    Ta, pa, _ = align_objects(poses, params, torch.zeros(1, 2, dtype=torch.long), v, tol)
+    assert Ta[0, 0, 2, 2] == pytest.approx(1.0)  # the box: its new z axis is world up
+    assert pa[0, 0, 2] == pytest.approx(0.019)  # and its height is the 1.9 cm half extent
+    assert abs(float(Ta[0, 1, 2, 2])) < 1e-12  # the cylinder keeps its (horizontal) z axis
+
+
 def test_predict_validates_shapes_and_object_count():
     model = _model()
     poses, params, kinds = random_scene(0, 2)
