@@ -468,11 +468,11 @@ def centred_first(cands, indices: np.ndarray, centre: np.ndarray) -> np.ndarray:
 SIM_GRASP_WIDTH = 0.075
 """Widest rule-based grasp (m) the simulator's planner keeps, instead of B.5's 7 cm. PyBullet
 renders the 6.7 cm tomato-soup can (the grasping-clutter target) 7.0 cm wide: its side points lie
-3.45-3.55 cm from the axis, without sensor noise. Recognition adds 1-2 mm, so at 7 cm every
-candidate of the target was dropped in 3 of 10 clutter scenes at the first step (one never found a
-grasp in 10 pushes). 7.5 cm is the thesis' own limit for the shelf (C.3) and leaves 2.5 mm per
-finger of the 8 cm opening; the large flat box (13 cm across, 5 cm high) stays graspable only
-across its height, at the table edge (ours)."""
+3.45-3.55 cm from the axis, without sensor noise, and recognition adds a few mm (fitted radii
+3.5-3.9 cm at the first step of the 10 clutter scenes). At 7 cm the target then often had no
+candidate at all (clutter #4 never found a grasp in 10 pushes). 7.5 cm is the thesis' own limit
+for the shelf (C.3) and leaves 2.5 mm per finger of the 8 cm opening; the large flat box (13 cm
+across, 5 cm high) stays graspable only across its height, at the table edge (ours)."""
 
 
 def sim_planner(dynamics, n_sequences: int = 100, *, reachability=None, **config) -> PushMPC:
