@@ -173,7 +173,8 @@ def align_objects(
     Convention: only undeformed superellipsoids (``k = b = 0``) are aligned (for them an axis
     relabelling with permuted sizes describes the same solid). If ``|e1 - e2| < e_tol`` any
     axis may become z (the one closest to world z; the same solid for ``e1 = e2``, close to it
-    for nearly equal exponents), otherwise z keeps its axis and only its sign changes. x is the remaining axis closest (up to sign) to the horizontal push direction.
+    for nearly equal exponents), otherwise z keeps its axis and only its sign changes. x is the
+    remaining axis closest (up to sign) to the horizontal push direction.
 
     The action only picks one of four variants per object (x is axis ``i1`` or ``i2``, with
     either sign); :meth:`SQPDNet.predict` exploits this to encode each object once per variant.

@@ -61,9 +61,9 @@ def _split_concave(
     """Labels ``(M,)`` after removing seam nodes (>= 2 cut edges) and regrowing.
 
     An edge is cut where the surface is concave or where ``colour_cut`` (edges,) says the
-    colour changes; colour edges are also dropped from the graph themselves. Components of the graph without seam nodes that weigh at least
-    ``min_cluster_points`` points are seeds; every other node (seam, fragment) joins the seed of
-    its nearest seed node.
+    colour changes; colour edges are also dropped from the graph themselves. Components of the
+    graph without seam nodes that weigh at least ``min_cluster_points`` points are seeds; every
+    other node (seam, fragment) joins the seed of its nearest seed node.
     """
     d = x[edges[:, 0]] - x[edges[:, 1]]
     dn = normals[edges[:, 0]] - normals[edges[:, 1]]

@@ -128,9 +128,10 @@ class SearchPlanner:
         ``grasp_check`` (optional): the robot's own IK and arm checks of a grasp. A pick of a
         surrounding object uses only a grasp it accepts (with the objects). Once the target is
         visible at ``x*``, ``g(x*)`` counts only the C.3 candidates the robot can execute. The
-        afterimage of the gripper and links 6-7 (C.3) misses the rest of the arm and the IK: the check with ``objects=True`` filters
-        the candidates for the current scene (and so decides whether to grasp now), the one
-        with ``objects=False`` those of the predicted scenes (the arm-shelf part does not move).
+        afterimage of the gripper and links 6-7 (C.3) misses the rest of the arm and the IK:
+        the check with ``objects=True`` filters the candidates for the current scene (and so
+        decides whether to grasp now), the one with ``objects=False`` those of the predicted
+        scenes (the arm-shelf part does not move).
         When no candidate passes even without objects, no rearrangement can make the target
         graspable and the decision is ``none``."""
         if target_visible and target_pose is None:

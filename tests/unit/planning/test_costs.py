@@ -242,7 +242,7 @@ def test_grasps_are_tried_nearest_the_object_centre_first():
 
 
 def test_the_simulator_planner_grasps_a_can_recognized_slightly_too_wide():
-    """PyBullet renders the 6.7 cm tomato-soup can 7.0 cm wide and recognition adds 1-2 mm:
+    """PyBullet renders the 6.7 cm tomato-soup can 7.0 cm wide and recognition adds a few mm:
     at B.5's 7 cm such a can has no candidate; ``sim_planner`` keeps grasps up to 7.5 cm."""
     from planning_helpers import PusherDynamics
     from sqmanip.planning.config import MPCConfig
