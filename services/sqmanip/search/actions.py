@@ -286,6 +286,12 @@ class ActionSampler:
         """``(P,)``: gripper points ``pts`` (:func:`cluster_points`) at ``poses (P, 4, 4)`` come
         into a keep-out disc ``(x, y, r)`` below the target's top; with ``sweep``, anywhere on
         their way in from the shelf front along +x (the pusher's approach)."""
+        return self._keep_out_contacts(pts, poses, keep_out, sweep).any(-1)
+
+    def _keep_out_contacts(
+        self, pts, poses: torch.Tensor, keep_out: torch.Tensor, sweep: bool = False
+    ) -> torch.Tensor:
+        """``(P, Q)``: which discs :meth:`_touches_keep_out` finds touched."""
         local = pts[0].reshape(-1, 3).double()
         world = local @ poses[:, :3, :3].double().transpose(-1, -2) + poses[:, None, :3, 3].double()
         low = (world[..., 2] < self.shelf.bottom_z + self.target_height)[..., None]  # (P, J, 1)
@@ -296,7 +302,7 @@ class ActionSampler:
             inside = (dy.abs() < ko[:, 2]) & (dx > -ko[:, 2])
         else:
             inside = dx * dx + dy * dy < ko[:, 2] ** 2
-        return (inside & low).flatten(1).any(-1)
+        return (inside & low).any(1)
 
     # --- pick and place --------------------------------------------------------------------
 
@@ -388,6 +394,14 @@ class ActionSampler:
         ds = [float(d) for d in self.config.push_distances]
         if keep_out is None or keep_out.numel() == 0:
             return ds
+        first = float(self._slide_contacts(scene, i, direction, keep_out).min())
+        return [d for d in ds if d - self.config.push_gap <= first]
+
+    def _slide_contacts(
+        self, scene: SceneState, i: int, direction: int, keep_out: torch.Tensor
+    ) -> torch.Tensor:
+        """``(Q,)`` slide length at which object ``i`` (its world-axis box) pushed towards
+        ``direction`` meets each keep-out disc (``inf``: never)."""
         c = scene.poses[i, :2, 3].double()
         hx, hy = (float(v) for v in world_half_extents(scene)[i, :2])
         rel = keep_out[:, :2].double() - c
@@ -396,10 +410,21 @@ class ActionSampler:
         # the object's box (world half extents) slides along y: it meets the disc ahead of it
         # whose centre is within hx + r of its x, once it has moved along - hy - r
         ahead = (along > 0) & (rel[:, 0].abs() < hx + rk)
-        if not bool(ahead.any()):
-            return ds
-        first = float((along[ahead] - hy - rk[ahead]).min())
-        return [d for d in ds if d - self.config.push_gap <= first]
+        contact = (along - hy - rk).clamp(min=0.0)
+        return torch.where(ahead, contact, torch.full_like(contact, math.inf))
+
+    def push_risk(self, scene: SceneState, push: Push, keep_out: torch.Tensor | None) -> float:
+        """Share of the keep-out discs (the poses where the target may stand) that ``push``
+        may touch: the closed hand on its way in from the shelf front, or the pushed object
+        over its slide (see :meth:`push_poses` and :meth:`push_distances`). With the target
+        equally likely at each, this is the probability that the push shoves it (ours)."""
+        if keep_out is None or keep_out.numel() == 0:
+            return 0.0
+        T = torch.as_tensor(push.gripper_pose[None])
+        hand = self._keep_out_contacts(self.closed, T, keep_out, sweep=True)[0]
+        slide = self._slide_contacts(scene, push.obj, push.direction, keep_out)
+        touched = hand | (slide < push.distance - self.config.push_gap)
+        return float(touched.double().mean())
 
     def candidates(
         self,

@@ -94,6 +94,13 @@ class SearchConfig:
     placed objects with this margin (m) beyond the target's radius: the target stands anywhere
     within half a grid cell of a pose with ``f = 1``, and a push that grazes it shoves it
     deeper, out of every grasp (ours)."""
+    risk_weight: float = 0.0
+    """When no push keeps out of where the target may stand (the fallback pass of
+    :meth:`SearchPlanner.decide`), a push whose hand's way in or whose pushed object's slide
+    meets a share ``p`` of those poses costs ``risk_weight * p * J_0`` more (ours; 0: the
+    fallback pushes are ranked by the objective alone): a shoved target tends to end deeper or
+    against a wall, out of every grasp. Off by default: with recognized shapes no setting
+    measured better than 0 (``benchmarks.search``, 100 paired episodes; see the issue note)."""
     place_resolution: float = 0.03
     """Spacing of the candidate place spots on the floor (m) (ours)."""
     max_place_spots: int = 64
@@ -125,6 +132,8 @@ class SearchConfig:
             raise ValidationError(
                 f"keep_out_margin must be finite and >= 0, got {self.keep_out_margin!r}"
             )
+        if not (math.isfinite(self.risk_weight) and self.risk_weight >= 0):
+            raise ValidationError(f"risk_weight must be finite and >= 0, got {self.risk_weight!r}")
         if not (math.isfinite(self.seen_margin) and self.seen_margin >= 0):
             raise ValidationError(f"seen_margin must be finite and >= 0, got {self.seen_margin!r}")
         if not (0.0 < self.render_scale <= 1.0):

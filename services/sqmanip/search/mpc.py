@@ -214,10 +214,10 @@ class SearchPlanner:
                     checked[key] = bool(grasp_check(T.double().numpy()[None], True)[0])
                 return checked[key]
 
+        # pushes that may sweep where the target may stand come only when nothing else is
+        # left, priced by that risk (risk_weight); picks and places always keep out of it
         first: list[Action] = []
         for push_keep_out in (True, False):
-            # pushes that would sweep where the target may stand come last: only when nothing
-            # else is left (the target there would be shoved along, see push_distances)
             cands = sampler.candidates(scene, keep_out, push_keep_out, pick_ok)
             first = sampler.sample(scene, rng, cfg.n_sequences, keep_out, cands)
             first = [
@@ -225,6 +225,9 @@ class SearchPlanner:
             ]
             if first or not keep_out.numel():
                 break
+        risk = np.array(
+            [sampler.push_risk(scene, a, keep_out) if isinstance(a, Push) else 0.0 for a in first]
+        )
         times["sample"] = (time.perf_counter() - t) * 1e3
         if not first:
             times["total"] = (time.perf_counter() - t0) * 1e3
@@ -234,12 +237,16 @@ class SearchPlanner:
             scene, root, first, ev, sampler, shelf, target_visible, target_pose, rng, allowed_later
         )
         times["rollout"] = (time.perf_counter() - t) * 1e3
+        costs = costs + cfg.risk_weight * risk * max(root.J, 1.0)
         best = int(np.argmin(costs))
         a = first[best]
+        params = _action_params(a)
+        if isinstance(a, Push):
+            params["target_risk"] = float(risk[best])
         times["total"] = (time.perf_counter() - t0) * 1e3
         return Decision(
             a.kind,
-            _action_params(a),
+            params,
             f_map,
             fg_map,
             float(costs[best]),

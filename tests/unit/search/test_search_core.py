@@ -157,6 +157,52 @@ def test_pusher_path_keeps_out_of_where_the_target_may_stand():
     assert [p[0] for p in low.push_poses(scene, 0, beside)] == [1, -1]
 
 
+def test_push_risk_is_the_share_of_keep_out_discs_a_push_may_touch():
+    """The risk of a push is the share of the discs where the target may stand that the
+    pushed object's slide or the hand's way in meets: 1/2 for a long push towards one of two
+    discs, 0 for a push short of it, away from it, or with no disc at all."""
+    from sqmanip.search import ActionSampler
+    from sqmanip.search.actions import Push
+
+    sampler = ActionSampler(SHELF, CFG, target_height=0.12)
+    scene = SceneState.from_objects([box(0.60, 0.0, 0.06, 0.06, 0.15)])
+    poses = {d: (T, tcp) for d, T, tcp in sampler.push_poses(scene, 0)}
+
+    def push(direction, dist):
+        T, tcp = poses[direction]
+        return Push("push", 0, direction, dist, T, tcp, np.array([0.0, direction * dist, 0.0]))
+
+    discs = torch.tensor([[0.60, 0.12, 0.025], [0.60, -0.40, 0.025]])  # ahead in +y; far away
+    assert sampler.push_risk(scene, push(1, 0.15), discs) == pytest.approx(0.5)
+    assert sampler.push_risk(scene, push(1, 0.05), discs) == 0.0  # stops 1.5 cm short
+    assert sampler.push_risk(scene, push(-1, 0.15), discs) == 0.0
+    assert sampler.push_risk(scene, push(1, 0.15), None) == 0.0
+
+
+def test_fallback_pushes_are_priced_by_the_risk_of_shoving_the_target():
+    """Behind the two boxes every push sweeps where the target may stand (the fallback pass):
+    the chosen push reports the share it may touch (``target_risk``), and with risk_weight w
+    its cost is the objective's plus ``w * target_risk * J_0``."""
+    torch.set_num_threads(1)
+    objs = [box(0.64, 0.0, 0.05, 0.12, 0.22), box(0.66, 0.2, 0.05, 0.12, 0.22)]
+    out = {}
+    for weight in (0.0, 1000.0):
+        cfg = SearchConfig(
+            resolution=0.04, n_sequences=16, horizon=1, actions="push", risk_weight=weight
+        )
+        planner = SearchPlanner(KinematicPushDynamics(), None, cfg)
+        out[weight] = planner.decide(objs, TARGET, SHELF, SHELF.camera(), False, rng=0)
+    _, ev, _ = planner.models(SHELF, TARGET, SHELF.camera())
+    J0 = ev.maps(SceneState.from_objects(objs)).J
+    free, priced = out[0.0], out[1000.0]
+    assert free.kind == priced.kind == "push"
+    assert priced.params["target_risk"] > 0  # no push keeps out: the fallback pass
+    assert priced.params["target_risk"] <= free.params["target_risk"]
+    if priced.params["start"].tolist() == free.params["start"].tolist():
+        expected = free.objective + 1000.0 * priced.params["target_risk"] * max(J0, 1.0)
+        assert priced.objective == pytest.approx(expected)
+
+
 def test_sqpdnet_dynamics_in_a_scene_larger_than_the_net_takes():
     """The shipped SQPD-Net takes 4 objects: in a 6-object shelf scene each push moves only
     the 4 objects nearest its start, exactly as the net predicts them alone; the rest stay."""
