@@ -190,13 +190,15 @@ def run_episode(task: dict) -> dict:
     sim = _STATE["sim"]
     shapes, method = METHODS[task["method"]]
     dyn_name = task.get("dynamics", "kinematic")
-    planner = _STATE["planners"].get((method, dyn_name))
+    risk_weight = float(task.get("risk_weight", 0.0))
+    planner = _STATE["planners"].get((method, dyn_name, risk_weight))
     if planner is None:
         from sqmanip.search.scenarios import shelf_spec
 
         dynamics = _push_dynamics(dyn_name, shelf_spec(sim).bottom_z)
-        planner = SearchPlanner(dynamics, None, SearchConfig(method=method))
-        _STATE["planners"][(method, dyn_name)] = planner
+        cfg = SearchConfig(method=method, risk_weight=risk_weight)
+        planner = SearchPlanner(dynamics, None, cfg)
+        _STATE["planners"][(method, dyn_name, risk_weight)] = planner
     runner = EpisodeRunner(sim, planner, shapes=shapes, keep_images=bool(task.get("png")))
     scenario = ShelfScenario.from_dict(task["scenario"])
     t = time.perf_counter()
@@ -287,6 +289,13 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="2 episodes, 2 and 4 objects")
     ap.add_argument("--out", default=OUT, help=f"results file (default {OUT})")
     ap.add_argument(
+        "--risk-weight",
+        type=float,
+        default=0.0,
+        help="price of a fallback push's risk of shoving the target (SearchConfig.risk_weight; "
+        "default 0)",
+    )
+    ap.add_argument(
         "--dynamics",
         default="kinematic",
         help="push model: 'kinematic' (the pushed object slides, the others stay) or an SQPD-Net "
@@ -321,7 +330,8 @@ def main(argv=None) -> int:
                 if k == 0 and not args.no_png:
                     png = os.path.join(PNG_DIR, f"{m}_{n}obj_seed{sc['seed']}.png")
                 tasks.append(dict(method=m, n_objects=n, scenario=sc, seed=args.seed + k, png=png,
-                                  dynamics=args.dynamics))  # fmt: skip
+                                  dynamics=args.dynamics,
+                                  risk_weight=args.risk_weight))  # fmt: skip
     t1 = time.perf_counter()
     if args.ray_address:
         import ray
