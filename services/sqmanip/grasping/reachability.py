@@ -10,11 +10,12 @@ solutions for its three key poses, which are solved in the same order and from t
 3. lift: the grasp pose raised ``approach_distance``, seeded at the grasp solution.
 
 Each solve is :meth:`sqmanip.sim.kinematics.PandaKinematics.ik` (pinocchio damped least squares,
-joint limits by clamping) on the same URDF and base pose as the simulator. The simulator tries
-the seed, the ``READY`` pose, then 7 random restarts; here only the first two deterministic seeds
-are tried (``restarts=1``), so a pose accepted here converges in the simulator from the very same
-seed to the very same joint angles (the iteration is deterministic), while a pose only a random
-restart could reach is rejected: the check is *conservative*, never optimistic. Collisions of the
+joint limits by clamping) on the same URDF and base pose as the simulator. The simulator's
+grasp plan (``Simulator.plan_grasp``) tries the seed and the ``READY`` pose first, then its fixed
+extra seeds when that chain collides; here only the first two are tried (``restarts=1``), so a
+pose accepted here converges in the simulator from the very same seed to the very same joint
+angles (the iteration is deterministic), while a pose only another seed could reach is
+rejected: the check is *conservative*, never optimistic. Collisions of the
 arm with the table are not part of it (the simulator checks those; the planner checks the hand).
 
 Frames (checked against both sides): the planner's grasp pose and the simulator's tool pose both

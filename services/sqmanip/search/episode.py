@@ -16,8 +16,8 @@ configuration) and checks the whole arm against the shelf and the objects, and r
 nine in ten grasps ``g`` accepted (the elbow, link 4, hits the shelf's floor board for grasps low
 or from the side; links 5-6 hit a neighbour at the pre-grasp pose). With an in-process
 simulator the runner therefore hands the planner a :class:`SimGraspCheck` -- the simulator's own
-IK (the same two deterministic seeds it tries first, so the same joint angles) and collision
-queries, without moving the robot -- and ``g(x*)`` counts only the grasps that pass; the
+grasp plan (``Simulator.plan_grasp``: IK over its fixed seeds and the collision queries),
+without moving the robot -- and ``g(x*)`` counts only the grasps that pass; the
 executed grasp is one of them. A pick-and-place of a surrounding object likewise uses a grasp
 that passes (with the objects). The planner's grasp poses put the TCP
 ``GripperSpec.flange_offset`` in front of the flange, the simulator's 1.8 mm further

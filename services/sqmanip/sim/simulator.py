@@ -187,6 +187,13 @@ class Simulator:
         self._held: int | None = None
         self._noise_rng = np.random.default_rng(0)
         self._ik_rng = np.random.default_rng(0)
+        draw = np.random.default_rng(12345)
+        self._grasp_seed_offsets = [
+            draw.normal(0.0, 0.5, 7) for _ in range(self.config.grasp_ik_seeds)
+        ]
+        """Offsets from the home configuration of the extra grasp IK seeds (rad): solutions
+        near home's branch; uniform draws over the joint range gave configurations the arm
+        could not track (a joint at its limit, a 4 rad swing of joint 1)."""
         self.robot: PandaRobot | None = None
         self.reset(self._spec)
 
@@ -477,8 +484,15 @@ class Simulator:
 
     # --- checks ------------------------------------------------------------------------------------
 
-    def _solve(self, T: np.ndarray, q_seed: np.ndarray, what: str) -> np.ndarray:
-        res = self.kin.ik(T, q_seed, rng=self._ik_rng)
+    def _solve(
+        self, T: np.ndarray, q_seed: np.ndarray, what: str, restarts: int | None = None
+    ) -> np.ndarray:
+        """IK from ``q_seed`` (then the ready pose and random restarts; ``restarts=0``: only
+        those two, deterministic)."""
+        if restarts is None:
+            res = self.kin.ik(T, q_seed, rng=self._ik_rng)
+        else:
+            res = self.kin.ik(T, q_seed, restarts=restarts)
         if not res.success:
             raise PreconditionError(
                 f"{what} at {np.round(T[:3, 3], 3).tolist()} is unreachable "
@@ -509,6 +523,13 @@ class Simulator:
         finally:
             r.restore(snap)
         return hits
+
+    def _inside_limits(self, *qs: np.ndarray, margin: float = 0.1) -> bool:
+        """Every configuration keeps ``margin`` (rad) from the joint limits."""
+        return all(
+            bool(np.all(q > self.kin.lower + margin) and np.all(q < self.kin.upper - margin))
+            for q in qs
+        )
 
     def _check_free(self, q: np.ndarray, width: float, what: str, objects: bool = False) -> None:
         hits = self._collisions(q, width, objects=objects)
@@ -606,15 +627,49 @@ class Simulator:
             r.move_joints(q_home)
         return self._result(True, "pushed", before, t0)
 
-    def _plan_grasp(self, pose: np.ndarray, width: float, q_seed: np.ndarray):
-        T_pre = offset_along_z(pose, -self.config.approach_distance)
-        q_pre = self._solve(T_pre, q_seed, "pre-grasp pose")
-        q_grasp = self._solve(pose, q_pre, "grasp pose")
-        q_lift = self._solve(lifted(pose, self.config.approach_distance), q_grasp, "lift pose")
-        self._check_free(q_pre, width, "pre-grasp configuration", objects=True)
-        self._check_free(q_grasp, width, "grasp configuration", objects=True)
-        self._check_free(q_lift, 0.0, "lift configuration")
-        return q_pre, q_grasp, q_lift
+    def plan_grasp(
+        self, pose: np.ndarray, width: float, q_start: np.ndarray, *, objects: bool = True
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Joint configurations ``(pre-grasp, grasp, lift)`` for a grasp at tool ``pose`` from
+        ``q_start``, without moving; :meth:`grasp` and :meth:`pick_and_place` execute them.
+
+        The pre-grasp IK is seeded at ``q_start``, then at the IK's first random restart and at
+        ``grasp_ik_seeds`` fixed offsets from ``q_start`` (these chains must keep 0.1 rad from
+        the joint limits); the grasp and the lift
+        are each seeded at the previous solution, and the approach may not flip a joint
+        (1 rad). The first chain whose pre-grasp and grasp configurations are free of the
+        static bodies (and of the objects, with ``objects``), whose lift configuration and joint
+        path from ``q_start`` are free of the static bodies wins. Deterministic. Raises :class:`PreconditionError` with the first seed's reason when
+        no seed gives such a chain (a deep pose's first IK solution often has the elbow in a
+        board where another clears it)."""
+        a = self.config.approach_distance
+        T_pre, T_lift = offset_along_z(pose, -a), lifted(pose, a)
+        first: PreconditionError | None = None
+        tried: list[np.ndarray] = []
+        # the first random restart of ``kin.ik`` (rng 0), then configurations near q_start
+        extra = [np.random.default_rng(0).uniform(self.kin.lower, self.kin.upper)]
+        extra += [self.kin.clamp(q_start + d) for d in self._grasp_seed_offsets]
+        for k, seed in enumerate((q_start, *extra)):
+            try:
+                q_pre = self._solve(T_pre, seed, "pre-grasp pose", restarts=0)
+                if any(np.abs(q_pre - q).max() < 1e-2 for q in tried):
+                    continue
+                tried.append(q_pre)
+                q_grasp = self._solve(pose, q_pre, "grasp pose", restarts=0)
+                if np.abs(q_grasp - q_pre).max() > 1.0:
+                    raise PreconditionError("grasp approach needs a joint flip")
+                q_lift = self._solve(T_lift, q_grasp, "lift pose", restarts=0)
+                if k and not self._inside_limits(q_pre, q_grasp, q_lift):
+                    raise PreconditionError("grasp needs a joint at its limit")
+                self._check_free(q_pre, width, "pre-grasp configuration", objects=objects)
+                self._check_free(q_grasp, width, "grasp configuration", objects=objects)
+                self._check_free(q_lift, 0.0, "lift configuration")
+                self._check_path(q_start, q_pre, width, "pre-grasp pose")
+                return q_pre, q_grasp, q_lift
+            except PreconditionError as exc:
+                first = first or exc
+        assert first is not None
+        raise first
 
     def _execute_grasp(self, q_pre, q_grasp, q_lift, width: float) -> tuple[bool, str, int | None]:
         r = self._require_robot()
@@ -656,8 +711,7 @@ class Simulator:
         pose = as_pose(pose, "pose")
         width = as_width(width)
         self._check_idle()
-        q_pre, q_grasp, q_lift = self._plan_grasp(pose, width, self.home)
-        self._check_path(r.q(), q_pre, width, "pre-grasp pose")
+        q_pre, q_grasp, q_lift = self.plan_grasp(pose, width, self.home)
         before = self.get_state()
         t0 = self._time
         ok, msg, held = self._execute_grasp(q_pre, q_grasp, q_lift, width)
@@ -692,7 +746,7 @@ class Simulator:
         self._in_workspace(
             place_pose[:3, 3] * [1, 1, 0] + [0, 0, self._floor_z() + 0.01], "place position"
         )
-        q_pre, q_grasp, q_lift = self._plan_grasp(grasp_pose, width, self.home)
+        q_pre, q_grasp, q_lift = self.plan_grasp(grasp_pose, width, self.home)
         T_pre_place = lifted(place_pose, self.config.approach_distance)
         q_pre_place = self._solve(T_pre_place, q_lift, "pre-place pose")
         q_place = self._solve(place_pose, q_pre_place, "place pose")
@@ -701,7 +755,6 @@ class Simulator:
         )
         self._check_free(q_place, 0.0, "place configuration")
         self._check_free(q_pre_place, 0.0, "pre-place configuration")
-        self._check_path(r.q(), q_pre, width, "pre-grasp pose")
         self._check_path(q_lift, q_pre_place, 0.0, "pre-place pose")
         before = self.get_state()
         t0 = self._time

@@ -69,7 +69,8 @@ def test_sim_tool_pose_moves_tcp_to_the_simulators_depth():
 
 
 def test_solve_matches_the_simulators_ik_chain(reach):
-    """Same model, seeds and order as ``Simulator._plan_grasp``: identical joint angles."""
+    """Same model, seeds and order as the first chain of ``Simulator.plan_grasp``: identical
+    joint angles."""
     T = down(0.5, -0.1, 0.04, yaw=0.7)
     q_pre, q_grasp, _ = reach.solve(T)
     kin = PandaKinematics(default_base_pose())

@@ -18,6 +18,7 @@ from sqmanip.sim import (
     Intrinsics,
     ObjectSpec,
     SceneSpec,
+    SimConfig,
     Simulator,
     workspace_bounds,
 )
@@ -281,6 +282,34 @@ def test_grasp_at_unreachable_or_colliding_poses_is_refused_with_the_reason(sim)
         sim.grasp(top_grasp(0.45, 0.0, -0.03), 0.05)
     with pytest.raises(ValidationError, match="orthonormal"):
         sim.grasp(np.diag([2.0, 1.0, 1.0, 1.0]), 0.05)
+
+
+def test_grasp_plan_tries_more_ik_seeds_when_the_first_chain_hits_the_shelf(sim):
+    """A side grasp in the shelf approaching 40 deg off straight in: seeded at home, the IK puts the arm
+    into the floor board; one of the fixed seeds gives a chain that clears it, and the grasp
+    lifts the cylinder. The plan is deterministic, and ``grasp`` executes that plan."""
+    tilt, yaw = np.radians(20.0), np.radians(40.0)  # approach pitched 20 deg down
+    z = np.array([np.cos(tilt) * np.cos(yaw), np.cos(tilt) * np.sin(yaw), -np.sin(tilt)])
+    y = np.array([-np.sin(yaw), np.cos(yaw), 0.0])  # closing axis, horizontal
+    pose = np.eye(4)
+    pose[:3, :3] = np.stack([np.cross(y, z), y, z], -1)
+    pose[:3, 3] = (0.6113, 0.2011, 0.2361)
+    can = ObjectSpec("cylinder", position=(0.61, 0.2, 0.2501), radius=0.025, height=0.10)
+    spec = SceneSpec(kind="shelf", objects=(can,), seed=0)
+    first_only = Simulator(SimConfig(grasp_ik_seeds=0))
+    try:
+        first_only.reset(spec)
+        with pytest.raises(PreconditionError, match="collides with shelf"):
+            first_only.plan_grasp(pose, 0.08, first_only.home)
+    finally:
+        first_only.close()
+    sim.reset(spec)
+    q_pre, q_grasp, q_lift = sim.plan_grasp(pose, 0.08, sim.home)
+    np.testing.assert_allclose(sim.kin.fk(q_grasp)[:3, 3], pose[:3, 3], atol=2e-3)
+    assert np.array_equal(sim.plan_grasp(pose, 0.08, sim.home)[1], q_grasp)
+    r = sim.grasp(pose, 0.08)
+    assert r.success, r.message
+    sim.release()
 
 
 def test_grasp_through_the_shelf_top_is_refused(sim):
