@@ -145,17 +145,24 @@ class ExistenceModel:
         self.n_pixels = self.camera.width * self.camera.height
         self.pixel_area = camera.width * camera.height / self.n_pixels
         """Camera pixels per render pixel (``1 / render_scale^2``)."""
-        # f_c: target surface points (shrunk, C.2.10) in clusters, and the shelf part once
-        pts, _ = sample_surface(
-            torch.as_tensor(target.params(cfg.fc_shrink), dtype=torch.float64),
-            cfg.n_target_points,
-            generator=cfg.seed,
+
+        # f_c: target surface points (shrunk, C.2.10) in clusters, and the shelf part once; the
+        # objects are tested with the target shrunk by object_tolerance more (their shapes are
+        # recognized, the shelf's are known)
+        def surface(shrink: float):
+            pts, _ = sample_surface(
+                torch.as_tensor(target.params(shrink), dtype=torch.float64),
+                cfg.n_target_points,
+                generator=cfg.seed,
+            )
+            return cluster_points(pts, 8, self.dtype)
+
+        shelf_pts = surface(cfg.fc_shrink)
+        self.points, self.point_centers, self.point_radii = surface(
+            cfg.fc_shrink + cfg.object_tolerance
         )
-        self.points, self.point_centers, self.point_radii = cluster_points(pts, 8, self.dtype)
         shelf_obs = Obstacles.from_parts(shelf.boxes(), self.dtype)
-        self.fc_shelf = ~shelf_obs.hits(
-            self.points, self.point_centers, self.point_radii, grid.poses
-        ).any(-1)
+        self.fc_shelf = ~shelf_obs.hits(*shelf_pts, grid.poses).any(-1)
         self._foot = self._target_footprints()
         self.n_foot = torch.bincount(self._foot.pose, minlength=len(grid))
         """``(P,)`` render pixels on which the target at each grid pose would be visible."""

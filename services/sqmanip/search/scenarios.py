@@ -174,7 +174,8 @@ class ScenarioBuilder:
         """``grasp_planner``: source of the target's C.3 candidates (see
         :class:`.actions.GraspSource`; ``None`` in-process)."""
         self.sim = sim or Simulator()
-        self.config = config or SearchConfig()
+        # placement tests the ground-truth shapes: no recognition tolerance
+        self.config = dataclasses.replace(config or SearchConfig(), object_tolerance=0.0)
         self.target = target or TargetSpec.cylinder(TARGET_RADIUS, TARGET_HEIGHT)
         self.shelf = shelf_spec(self.sim)
         self.camera = shelf_camera(self.sim)

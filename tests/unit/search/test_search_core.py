@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -53,6 +55,23 @@ def test_f_is_one_behind_a_box_and_zero_in_seen_space_and_inside(models):
     assert f[idx_near(grid, 0.60, 0.0)] == 0  # inside the box (f_c)
     empty = em.evaluate(SceneState.from_objects([]))
     assert empty.sum() == 0  # nothing hides the target anywhere
+
+
+def test_f_tolerates_a_recognized_back_that_reaches_into_the_target(models):
+    """A recognized occluder's hidden back is an estimate: one 12 mm too deep reaches into the
+    target standing behind it. f_c ignores overlaps up to ``fc_shrink + object_tolerance``
+    with the objects, and only ``fc_shrink`` with the shelf, whose boards are known."""
+    grid, em, _ = models
+    i = idx_near(grid, 0.72, 0.0)
+    x = float(grid.xy[i, 0])
+    back = x - TARGET.size[0] + 0.012  # 12 mm into the target at grid pose i
+    scene = SceneState.from_objects([box(back - 0.04, 0.0, 0.08, 0.26, 0.25)])
+    strict = ExistenceModel(
+        SHELF, TARGET, grid, SHELF.camera(), dataclasses.replace(CFG, object_tolerance=0.0)
+    )
+    assert strict.evaluate(scene)[i] == 0
+    assert em.evaluate(scene)[i] == 1  # the default tolerance (10 mm more)
+    assert torch.equal(strict.fc_shelf, em.fc_shelf)
 
 
 def test_f_rejects_a_target_that_would_be_partly_seen(models):
