@@ -4,7 +4,9 @@ thesis' numbers; plus the timing of f and g over the whole pose grid (C.2: 13 ms
 an RTX 3090).
 
 Scenarios (:mod:`sqmanip.search.scenarios`) are generated once per object count from seeds
-``--seed, --seed + 1, ...`` (discarded ones skipped) and shared by all methods. Episodes run in
+``--seed, --seed + 1, ...`` (discarded ones skipped) and shared by all methods; a change to the
+arm check changes which scenarios are kept, so ``--save-scenarios F`` at one commit and
+``--scenarios F`` at another compare two versions on the same scenes. Episodes run in
 ``--workers`` processes (one simulator and planner per process, 1 torch thread each) or, with
 ``--ray-address``, as Ray tasks on a cluster (``pip install ray``; the full 180 episodes per cell
 of the thesis). Pushes are predicted with the kinematic push model, or with SQPD-Net from a
@@ -301,6 +303,13 @@ def main(argv=None) -> int:
         help="push model: 'kinematic' (the pushed object slides, the others stay) or an SQPD-Net "
         "checkpoint directory such as models/sqpdnet (default kinematic)",
     )
+    ap.add_argument(
+        "--scenarios",
+        default=None,
+        help="replay the scenarios saved by --save-scenarios (JSON) instead of generating them: "
+        "two code versions compared on the same scenes",
+    )
+    ap.add_argument("--save-scenarios", default=None, help="write the scenarios used (JSON)")
     args = ap.parse_args(argv)
     if args.quick:
         args.episodes, args.objects = 2, [2, 4]
@@ -318,7 +327,18 @@ def main(argv=None) -> int:
         f"f over grid {timing['f_ms']:.1f} ms (thesis 13 ms, RTX 3090); g over grid "
         f"{timing['g_ms']:.1f} ms (thesis 12.8 ms); 4-object scene, median of 5"
     )
-    scen = {n: make_scenarios(n, args.episodes, args.seed) for n in args.objects}
+    if args.scenarios:
+        with open(args.scenarios) as f:
+            saved = {int(n): v for n, v in json.load(f).items()}
+        missing = [n for n in args.objects if n not in saved]
+        if missing:
+            ap.error(f"{args.scenarios} holds no scenarios with {missing} objects")
+        scen = {n: saved[n][: args.episodes] for n in args.objects}
+    else:
+        scen = {n: make_scenarios(n, args.episodes, args.seed) for n in args.objects}
+    if args.save_scenarios:
+        with open(args.save_scenarios, "w") as f:
+            json.dump(scen, f)
     print(
         f"scenarios: { {n: len(v) for n, v in scen.items()} } in {time.perf_counter() - t0:.0f} s"
     )
