@@ -137,8 +137,10 @@ def push_tool_rotation(v: np.ndarray, yaw_offset: float = 0.0, down: bool = True
     the horizontal push direction (the fingers' broad side faces the motion), ``yaw_offset``
     (0 or pi, same finger geometry) chosen by the caller for the joint limits.
 
-    With ``down=False`` (shelf) the tool z points into the shelf (+x) and the closing axis is
-    vertical, so the slim side of the hand enters the shelf.
+    With ``down=False`` (shelf) the tool z points level into the shelf (+x), tool x down (up for
+    ``yaw_offset = pi``), so the closing axis (tool y) lies across the shelf along the push. The
+    search planner's pusher model pitches this tool 30 deg down (5.4.4); executing that tilt
+    here was tried: the refused actions quadrupled (IK flips, collisions; see the issue 10 note).
     """
     if down:
         d = np.array([v[0], v[1], 0.0])
