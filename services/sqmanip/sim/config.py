@@ -123,10 +123,10 @@ class SimConfig:
     data generator uses ``teleport`` (about 3x fewer physics steps per tuple)."""
     approach_distance: float = 0.10
     """Pre-grasp offset back along the gripper z axis and lift height after closing (m)."""
-    grasp_ik_seeds: int = 12
-    """Fixed offsets from home (drawn once, seeded) a grasp plan tries as IK seeds after home
-    and the ready configuration: a pose deep in a shelf has several IK solutions and often only
-    some keep the elbow off the boards."""
+    grasp_ik_seeds: int = 13
+    """More IK seeds a grasp plan tries after home and the ready configuration (the IK's first
+    random restart, then fixed offsets from home drawn once; 0: home only): a pose deep in a
+    shelf has several IK solutions and often only some keep the elbow off the boards."""
     hold_time: float = 1.0
     """Time the lifted object must stay in the hand for a successful grasp (s)."""
     grip_force: float = 40.0

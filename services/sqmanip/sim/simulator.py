@@ -189,7 +189,7 @@ class Simulator:
         self._ik_rng = np.random.default_rng(0)
         draw = np.random.default_rng(12345)
         self._grasp_seed_offsets = [
-            draw.normal(0.0, 0.5, 7) for _ in range(self.config.grasp_ik_seeds)
+            draw.normal(0.0, 0.5, 7) for _ in range(max(self.config.grasp_ik_seeds - 1, 0))
         ]
         """Offsets from the home configuration of the extra grasp IK seeds (rad): solutions
         near home's branch; uniform draws over the joint range gave configurations the arm
@@ -633,9 +633,9 @@ class Simulator:
         """Joint configurations ``(pre-grasp, grasp, lift)`` for a grasp at tool ``pose`` from
         ``q_start``, without moving; :meth:`grasp` and :meth:`pick_and_place` execute them.
 
-        The pre-grasp IK is seeded at ``q_start``, then at the IK's first random restart and at
-        ``grasp_ik_seeds`` fixed offsets from ``q_start`` (these chains must keep 0.1 rad from
-        the joint limits); the grasp and the lift
+        The pre-grasp IK is seeded at ``q_start``, then at ``grasp_ik_seeds`` more: the IK's
+        first random restart and fixed offsets from ``q_start`` (these chains must keep 0.1 rad
+        from the joint limits); the grasp and the lift
         are each seeded at the previous solution, and the approach may not flip a joint
         (1 rad). The first chain whose pre-grasp and grasp configurations are free of the
         static bodies (and of the objects, with ``objects``), whose lift configuration and joint
@@ -648,6 +648,7 @@ class Simulator:
         tried: list[np.ndarray] = []
         # the first random restart of ``kin.ik`` (rng 0), then configurations near q_start
         extra = [np.random.default_rng(0).uniform(self.kin.lower, self.kin.upper)]
+        extra = extra[: max(self.config.grasp_ik_seeds, 0)]
         extra += [self.kin.clamp(q_start + d) for d in self._grasp_seed_offsets]
         for k, seed in enumerate((q_start, *extra)):
             try:
