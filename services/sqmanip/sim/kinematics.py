@@ -74,8 +74,10 @@ class PandaKinematics:
         """Project joint angles ``(7,)`` into the limits (with a 1e-4 rad margin)."""
         return np.clip(q, self.lower + 1e-4, self.upper - 1e-4)
 
-    def within_limits(self, q: np.ndarray) -> bool:
-        return bool(np.all(q >= self.lower - 1e-6) and np.all(q <= self.upper + 1e-6))
+    def within_limits(self, q: np.ndarray, margin: float = -1e-6) -> bool:
+        """Joint angles ``(7,)`` keep ``margin`` (rad) inside the limits (the default tolerates
+        rounding just outside them)."""
+        return bool(np.all(q >= self.lower + margin) and np.all(q <= self.upper - margin))
 
     def fk(self, q: np.ndarray, frame: str = TCP_FRAME) -> np.ndarray:
         """World pose (4 x 4) of ``frame`` (default: TCP) at joint angles ``q (7,)``."""

@@ -187,13 +187,14 @@ class Simulator:
         self._held: int | None = None
         self._noise_rng = np.random.default_rng(0)
         self._ik_rng = np.random.default_rng(0)
+        n = max(self.config.grasp_ik_seeds, 0)
+        self._grasp_restart = [np.random.default_rng(0).uniform(self.kin.lower, self.kin.upper)][:n]
+        """The IK's first random restart (``kin.ik`` with rng 0), the first extra grasp seed."""
         draw = np.random.default_rng(12345)
-        self._grasp_seed_offsets = [
-            draw.normal(0.0, 0.5, 7) for _ in range(max(self.config.grasp_ik_seeds - 1, 0))
-        ]
-        """Offsets from the home configuration of the extra grasp IK seeds (rad): solutions
-        near home's branch; uniform draws over the joint range gave configurations the arm
-        could not track (a joint at its limit, a 4 rad swing of joint 1)."""
+        self._grasp_seed_offsets = [draw.normal(0.0, 0.5, 7) for _ in range(n - 1)]
+        """Offsets from the home configuration of the other extra grasp IK seeds (rad):
+        solutions near home's branch; uniform draws over the joint range gave configurations
+        the arm could not track (a joint at its limit, a 4 rad swing of joint 1)."""
         self.robot: PandaRobot | None = None
         self.reset(self._spec)
 
@@ -524,13 +525,6 @@ class Simulator:
             r.restore(snap)
         return hits
 
-    def _inside_limits(self, *qs: np.ndarray, margin: float = 0.1) -> bool:
-        """Every configuration keeps ``margin`` (rad) from the joint limits."""
-        return all(
-            bool(np.all(q > self.kin.lower + margin) and np.all(q < self.kin.upper - margin))
-            for q in qs
-        )
-
     def _check_free(self, q: np.ndarray, width: float, what: str, objects: bool = False) -> None:
         hits = self._collisions(q, width, objects=objects)
         if hits:
@@ -635,21 +629,20 @@ class Simulator:
 
         The pre-grasp IK is seeded at ``q_start``, then at ``grasp_ik_seeds`` more: the IK's
         first random restart and fixed offsets from ``q_start`` (these chains must keep 0.1 rad
-        from the joint limits); the grasp and the lift
-        are each seeded at the previous solution, and the approach may not flip a joint
-        (1 rad). The first chain whose pre-grasp and grasp configurations are free of the
-        static bodies (and of the objects, with ``objects``), whose lift configuration and joint
-        path from ``q_start`` are free of the static bodies wins. Deterministic. Raises :class:`PreconditionError` with the first seed's reason when
-        no seed gives such a chain (a deep pose's first IK solution often has the elbow in a
-        board where another clears it)."""
+        from the joint limits); the grasp and the lift are each seeded at the previous
+        solution, and the approach may not flip a joint (1 rad). The first chain whose
+        pre-grasp and grasp configurations are free of the static bodies (and of the objects,
+        with ``objects``), whose lift configuration and joint path from ``q_start`` are free of
+        the static bodies wins. Deterministic. Raises :class:`PreconditionError` with the first
+        seed's reason when no seed gives such a chain (a deep pose's first IK solution often
+        has the elbow in a board where another clears it)."""
         a = self.config.approach_distance
         T_pre, T_lift = offset_along_z(pose, -a), lifted(pose, a)
         first: PreconditionError | None = None
         tried: list[np.ndarray] = []
-        # the first random restart of ``kin.ik`` (rng 0), then configurations near q_start
-        extra = [np.random.default_rng(0).uniform(self.kin.lower, self.kin.upper)]
-        extra = extra[: max(self.config.grasp_ik_seeds, 0)]
-        extra += [self.kin.clamp(q_start + d) for d in self._grasp_seed_offsets]
+        extra = self._grasp_restart + [
+            self.kin.clamp(q_start + d) for d in self._grasp_seed_offsets
+        ]
         for k, seed in enumerate((q_start, *extra)):
             try:
                 q_pre = self._solve(T_pre, seed, "pre-grasp pose", restarts=0)
@@ -660,7 +653,7 @@ class Simulator:
                 if np.abs(q_grasp - q_pre).max() > 1.0:
                     raise PreconditionError("grasp approach needs a joint flip")
                 q_lift = self._solve(T_lift, q_grasp, "lift pose", restarts=0)
-                if k and not self._inside_limits(q_pre, q_grasp, q_lift):
+                if k and not all(self.kin.within_limits(q, 0.1) for q in (q_pre, q_grasp, q_lift)):
                     raise PreconditionError("grasp needs a joint at its limit")
                 self._check_free(q_pre, width, "pre-grasp configuration", objects=objects)
                 self._check_free(q_grasp, width, "grasp configuration", objects=objects)
