@@ -16,6 +16,13 @@ So at most ``8 x 5 x 4 = 160`` candidates per object. Every action is ``(p, v)``
 length ``push_length`` along the direction. Candidates whose start or end leave the workspace or
 whose start point lies inside (or within ``clearance`` of) any object are dropped.
 
+``min_travel`` (off in data generation, on in the MPC) also drops pushes whose tip meets the
+object on its pushing line less than that before the push ends. The start distance is the
+object's extent towards the pusher (its support function). Along an elongated object's diagonal
+that is much more than where the line enters the object. There, a 34 x 13 cm box pushed at 45
+degrees is touched for 1.6 cm, or not at all, and barely moves. SQPD-Net, trained on smaller
+objects, predicts 6-7 cm for such pushes.
+
 The functions take objects as ``(poses (N, 4, 4), params (N, 9))`` arrays (ground truth in data
 generation) or as :class:`~sqmanip.geometry.types.Superquadric` lists (recognized shapes in MPC).
 """
@@ -144,12 +151,15 @@ def push_candidates(
     tip_radius: float = 0.01,
     clearance: float = 0.005,
     workspace_height: float = WORKSPACE_HEIGHT,
+    min_travel: float | None = None,
 ) -> PushCandidates:
     """Every valid candidate push of the 4.5 sampler for the objects ``targets`` (default all).
 
     ``objects``: ``(poses (N, 4, 4), params (N, 9))`` or ``Superquadric`` list; ``workspace``:
     ``(2, 3)`` bounds or an object with ``min`` / ``max`` (e.g. ``perception.types.Workspace``).
     Heights are measured from the workspace floor ``workspace[0, 2]``. Deterministic (no RNG).
+    ``min_travel`` (m): keep only pushes that move the tip at least this far once it reaches the
+    object on the pushing line (module docstring); None keeps every push.
     """
     poses, params = as_object_arrays(objects)
     bounds = as_workspace_bounds(workspace)
@@ -190,6 +200,11 @@ def push_candidates(
         back = extent[:, None] + tip_radius + 2 * clearance + offsets[None, :]  # (D, J)
         start_xy = center - back[..., None] * d[:, None, :]  # (D, J, 2)
         D, J, Hn = directions, offsets.size, h_vals.size
+        touches = np.ones((D, J), dtype=bool)
+        if min_travel is not None:
+            reach = _reach_along(params[i], poses[i, :3, :3], -d)  # (D,)
+            travel = push_length - (back - tip_radius - reach[:, None])
+            touches = travel >= min_travel
         p = np.concatenate(
             [
                 np.broadcast_to(start_xy[:, :, None, :], (D, J, Hn, 2)),
@@ -210,8 +225,9 @@ def push_candidates(
             ),
             -1,
         ).reshape(-1, 3)
-        rows.append(np.concatenate([p, v], -1))
-        info.append(np.concatenate([np.full((p.shape[0], 1), i), idx], -1))
+        keep_i = np.broadcast_to(touches[:, :, None], (D, J, Hn)).reshape(-1)
+        rows.append(np.concatenate([p, v], -1)[keep_i])
+        info.append(np.concatenate([np.full((p.shape[0], 1), i), idx], -1)[keep_i])
     actions = np.concatenate(rows)
     meta = np.concatenate(info)
     keep = _inside(actions[:, :3], bounds) & _inside(actions[:, :3] + actions[:, 3:], bounds)
@@ -221,6 +237,19 @@ def push_candidates(
         actions, meta[:, 0].astype(np.int64), meta[:, 1].astype(np.int64),
         meta[:, 2].astype(np.int64), meta[:, 3].astype(np.int64),
     )  # fmt: skip
+
+
+def _reach_along(params: np.ndarray, R: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """``(D,)`` distance from the object's centre to its surface along the horizontal world
+    directions ``d (D, 2)``: the superellipsoid's inside-outside function is homogeneous about
+    its centre, ``F(s u) = s^(2/e1) F(u)``, so the surface lies at ``s = F(u)^(-e1/2)``
+    (deformations ignored, as for the surface points)."""
+    a = np.maximum(params[:3], 1e-6)
+    e1, e2 = np.clip(params[3:5], 0.1, 2.0)
+    u = np.concatenate([d, np.zeros((len(d), 1))], -1) @ R  # object frame (R^T d per row)
+    q = np.abs(u) / a
+    F = (q[:, 0] ** (2 / e2) + q[:, 1] ** (2 / e2)) ** (e2 / e1) + q[:, 2] ** (2 / e1)
+    return np.maximum(F, 1e-300) ** (-e1 / 2)
 
 
 def _inside(x: np.ndarray, bounds: np.ndarray, tol: float = 1e-9) -> np.ndarray:

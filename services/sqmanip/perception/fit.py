@@ -7,8 +7,9 @@ The amodal fit adds what one view implies about the unseen side:
 
 - **support**: an object in contact with the removed support plane reaches down to it and does
   not go through it: ``w_s (min_z)^2`` over a fixed grid of surface points (2.2.2, deformed by
-  2.3.11) in the plane frame (for segments whose lowest point is within ``support_contact``),
-  otherwise only ``w_s relu(-min_z)^2``;
+  2.3.11) in the plane frame for segments that rest on it (:func:`rests_on_support`: the
+  lowest point within ``support_contact``, or nothing seen under the segment), otherwise only
+  ``w_s relu(-min_z)^2``;
 - **free space**: the camera saw through the space in front of every observed point. Points
   ``x - s u`` (``u`` the unit ray from the viewpoint, ``s`` in ``free_space_offsets``) before
   object points, and points along the rays to the support plane's points and to points seen
@@ -45,6 +46,7 @@ import dataclasses
 import math
 
 import numpy as np
+from scipy.spatial import ConvexHull, QhullError
 from scipy.special import expit, logit
 
 from sqmanip.geometry import Superquadric
@@ -161,6 +163,39 @@ def initial_orientations(X: np.ndarray, upright: bool, pca: bool = True) -> list
             xi, yi = [i for i in range(3) if i != zi]
             out.append(_right_handed(np.stack([vec[:, xi], vec[:, yi], vec[:, zi]], 1)))
     return out
+
+
+UNDER_MARGIN = 0.01
+"""Seen points count as under a segment only this far (m) inside its footprint (sensor noise and
+perspective put a few table points right at a top face's rim)."""
+UNDER_MIN_POINTS = 3
+"""A segment with fewer seen points than this under it rests on the support (stray points)."""
+
+
+def rests_on_support(X: np.ndarray, seen: np.ndarray | None, contact: float) -> bool:
+    """Does the segment ``X (P, 3)`` (support-plane frame, z up) stand on the support?
+
+    Yes if its lowest point is within ``contact`` of the plane. Otherwise yes too if nothing was
+    seen under it: no point of ``seen (M, 3)`` (the other segments and the support plane's
+    points, same frame) lies below its lowest point inside its footprint (the convex hull of its
+    points' x, y, eroded by ``UNDER_MARGIN``). Objects do not float: a flat box seen only from
+    above (its top face 5 cm up, its sides hidden) must reach down to the table, while a
+    bottle's neck (its body seen under it) or a mug's handle (the table seen through it) must not.
+    """
+    z_min = float(X[:, 2].min())
+    if z_min < contact:
+        return True
+    if seen is None or len(seen) == 0:
+        return True
+    q = seen[seen[:, 2] < z_min, :2]
+    if len(q) < UNDER_MIN_POINTS:
+        return True
+    try:
+        hull = ConvexHull(X[:, :2])
+    except QhullError:  # a degenerate (edge-on) footprint has no inside to see anything in
+        return True
+    d = q @ hull.equations[:, :2].T + hull.equations[:, 2]  # signed distances to the edges
+    return int((d <= -UNDER_MARGIN).all(-1).sum()) < UNDER_MIN_POINTS
 
 
 BAND_Z_MIN = 0.004
@@ -663,6 +698,14 @@ def check_equal_sizes(segments: list[np.ndarray]) -> None:
         raise ValueError(f"segments must all have the same number of points, got {sorted(sizes)}")
 
 
+def seen_around(segments: list[np.ndarray], i: int, table_points: np.ndarray | None) -> np.ndarray:
+    """World points seen besides segment ``i``: the other segments and the support's points."""
+    rest = [np.asarray(s, dtype=np.float64) for j, s in enumerate(segments) if j != i]
+    if table_points is not None:
+        rest.append(np.asarray(table_points, dtype=np.float64))
+    return np.concatenate(rest) if rest else np.zeros((0, 3))
+
+
 def _initial_problems(segments, plane, viewpoint, table_points, settings, amodal, deformable, seed):
     """One problem per (segment, initial orientation): the batch, its data (local frames), the
     segment of each problem and each segment's frame."""
@@ -676,7 +719,9 @@ def _initial_problems(segments, plane, viewpoint, table_points, settings, amodal
         frame = _frame(pts, plane if use_plane else None)
         frames.append(frame)
         X = frame.to_local(pts)
-        contact = bool(use_plane and X[:, 2].min() < settings.support_contact)
+        contact = use_plane and rests_on_support(
+            X, frame.to_local(seen_around(segments, si, table_points)), settings.support_contact
+        )
         floor = 0.0 if contact else None
         F = np.zeros((0, 3))
         if amodal and viewpoint is not None:

@@ -79,7 +79,10 @@ class SamplerSpec:
 
     Per object: 8 push directions relative to its heading, towards its centre; 5 heights dividing
     the workspace height (kept below the object's top); 4 start points on the push line; at most
-    160 candidates per object. Defaults are the sampler's own (the data SQPD-Net is trained on).
+    160 candidates per object. Defaults are the sampler's own (the data SQPD-Net is trained on),
+    except ``min_travel``: the MPC drops pushes that would touch their object for less than
+    3 cm (``sqmanip.dynamics.sampler``). Such pushes occur along a long box's diagonal, and the
+    model overpredicts them.
     """
 
     directions: int = 8
@@ -90,6 +93,8 @@ class SamplerSpec:
     clearance: float = 0.005
     workspace_height: float = 0.192
     """Height the ``heights`` levels divide, above the table top (m), 4.5."""
+    min_travel: float | None = 0.03
+    """Least tip travel (m) after it meets the object on the pushing line; None: keep all."""
 
     def __post_init__(self) -> None:
         for name in ("directions", "heights"):
@@ -100,6 +105,8 @@ class SamplerSpec:
         _finite_positive("sampler.push_length", self.push_length)
         _finite_positive("sampler.tip_radius", self.tip_radius, allow_zero=True)
         _finite_positive("sampler.clearance", self.clearance, allow_zero=True)
+        if self.min_travel is not None:
+            _finite_positive("sampler.min_travel", self.min_travel, allow_zero=True)
         if len(self.start_offsets) == 0:
             raise ValidationError("sampler.start_offsets must hold at least one distance")
         for o in self.start_offsets:
@@ -114,6 +121,7 @@ class SamplerSpec:
             "tip_radius": self.tip_radius,
             "clearance": self.clearance,
             "workspace_height": self.workspace_height,
+            "min_travel": self.min_travel,
         }
 
 

@@ -411,11 +411,17 @@ class EpisodeRunner:
         if not feas.any():
             return None, None
         cands = checker.candidates(scene.parts[target])
+        # the Panda IK check accepts a grasp when it or its half-turned twin is reachable: send
+        # the reachable one (another reachability has no twins)
+        to_sim = getattr(checker.reachability, "executable_pose", None) or sim_tool_pose
         refused: list[str] = []
         for k in centred_first(cands, np.flatnonzero(feas), object_centre(scene.parts[target]))[
             : self.grasp_attempts
         ]:
-            pose = sim_tool_pose(cands.poses[k].numpy())
+            pose = to_sim(cands.poses[k].numpy())
+            if pose is None:
+                refused.append(f"candidate {k} is out of the arm's reach")
+                continue
             width = min(0.08, float(cands.widths[k]) + self.grasp_width_margin)
             t1 = time.perf_counter()
             try:

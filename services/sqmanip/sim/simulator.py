@@ -16,6 +16,7 @@ refused action never moves the robot.
 from __future__ import annotations
 
 import contextlib
+import math
 
 import numpy as np
 import pybullet as p
@@ -162,6 +163,18 @@ def joint_path(q0: np.ndarray, q1: np.ndarray, n: int = 8) -> list[np.ndarray]:
     """The ``n`` configurations strictly between ``q0`` and ``q1`` on the joint-space line that
     :meth:`Simulator.push` and the grasps check for collisions."""
     return [q0 + s * (q1 - q0) for s in np.linspace(0, 1, n + 2)[1:-1]]
+
+
+GRASP_PATH_STEP = 0.05
+"""Largest joint change (rad) between the checked configurations of the path to a pre-grasp
+pose. The path from home to a low side grasp can turn the wrist by 2 rad; 8 samples along it
+missed the hand crossing a box that the move then knocked off the table."""
+
+
+def grasp_path_samples(q0: np.ndarray, q1: np.ndarray) -> int:
+    """How many configurations :func:`joint_path` checks between ``q0`` and ``q1`` (at least 8)."""
+    largest = float(np.abs(np.asarray(q1) - np.asarray(q0)).max())
+    return max(8, math.ceil(largest / GRASP_PATH_STEP))
 
 
 def workspace_bounds() -> np.ndarray:
@@ -536,10 +549,16 @@ class Simulator:
             raise PreconditionError(f"{what} collides with {kind} ({names}){extra}")
 
     def _check_path(
-        self, q0: np.ndarray, q1: np.ndarray, width: float, what: str, n: int = 8
+        self,
+        q0: np.ndarray,
+        q1: np.ndarray,
+        width: float,
+        what: str,
+        n: int = 8,
+        objects: bool = False,
     ) -> None:
         for q in joint_path(q0, q1, n):
-            self._check_free(q, width, f"joint path to {what}")
+            self._check_free(q, width, f"joint path to {what}", objects=objects)
 
     def _check_idle(self) -> None:
         if self._held is not None:
@@ -631,11 +650,12 @@ class Simulator:
         first random restart and fixed offsets from ``q_start`` (these chains must keep 0.1 rad
         from the joint limits); the grasp and the lift are each seeded at the previous
         solution, and the approach may not flip a joint (1 rad). The first chain whose
-        pre-grasp and grasp configurations are free of the static bodies (and of the objects,
-        with ``objects``), whose lift configuration and joint path from ``q_start`` are free of
-        the static bodies wins. Deterministic. Raises :class:`PreconditionError` with the first
-        seed's reason when no seed gives such a chain (a deep pose's first IK solution often
-        has the elbow in a board where another clears it)."""
+        pre-grasp and grasp configurations and joint path from ``q_start`` (sampled every
+        :data:`GRASP_PATH_STEP`) are free of the static bodies (and of the objects, with
+        ``objects``), and whose lift configuration is free of the static bodies, wins.
+        Deterministic. Raises :class:`PreconditionError` with the first seed's reason when no
+        seed gives such a chain (a deep pose's first IK solution often has the elbow in a board
+        where another clears it)."""
         a = self.config.approach_distance
         T_pre, T_lift = offset_along_z(pose, -a), lifted(pose, a)
         first: PreconditionError | None = None
@@ -658,7 +678,10 @@ class Simulator:
                 self._check_free(q_pre, width, "pre-grasp configuration", objects=objects)
                 self._check_free(q_grasp, width, "grasp configuration", objects=objects)
                 self._check_free(q_lift, 0.0, "lift configuration")
-                self._check_path(q_start, q_pre, width, "pre-grasp pose")
+                self._check_path(
+                    q_start, q_pre, width, "pre-grasp pose", grasp_path_samples(q_start, q_pre),
+                    objects=objects,
+                )  # fmt: skip
                 return q_pre, q_grasp, q_lift
             except PreconditionError as exc:
                 first = first or exc

@@ -66,6 +66,23 @@ def test_sampler_candidates_are_se2_equivariant_and_filtered_by_the_workspace():
         assert np.all((x >= small[0] - 1e-9) & (x <= small[1] + 1e-9))
 
 
+def test_min_travel_drops_pushes_that_barely_touch_a_long_box_along_its_diagonal():
+    """A 34 x 13 x 5 cm box: a push at 45 degrees starts its support-function extent (16.6 cm)
+    away but meets the box on its line at 9.2 cm, so the tip travels 1.6 cm or less in contact
+    and the MPC drops it; along the axes it travels 6-9 cm and is kept. A round can loses
+    nothing, and ``None`` (data generation) keeps every push."""
+    box = np.eye(4)
+    box[:3, 3] = (0.0, 0.0, 0.025)
+    params = np.array([[0.065, 0.17, 0.025, 0.2, 0.2, 0, 0, 0, 0]])
+    every = push_candidates((box[None], params), BIG)
+    kept = push_candidates((box[None], params), BIG, min_travel=0.03)
+    assert len(every) == 8 * 4 and len(kept) == 4 * 4
+    angles = np.degrees(np.arctan2(kept.actions[:, 4], kept.actions[:, 3])) % 90
+    np.testing.assert_allclose(np.minimum(angles, 90 - angles), 0.0, atol=1e-9)
+    poses, params = _scene()
+    assert len(push_candidates((poses[1:], params[1:]), BIG, min_travel=0.03)) == 8 * 4
+
+
 def test_sample_push_actions_is_seeded_and_respects_n():
     poses, params = _scene()
     a = sample_push_actions((poses, params), BIG, np.random.default_rng(4), n=100)

@@ -7,9 +7,10 @@ import pytest
 import torch
 from sqmanip.geometry import Superquadric, radial_distance, sample_surface, so3_exp, volume_iou
 from sqmanip.perception.config import PerceptionSettings
-from sqmanip.perception.fit import fit_segments, tapered_radial_distance
+from sqmanip.perception.fit import fit_segments, rests_on_support, tapered_radial_distance
 from sqmanip.perception.mvbb import mvbb_fit
 from sqmanip.perception.pipeline import Recognizer
+from sqmanip.perception.preprocess import PlaneFit
 from sqmanip.perception.synthetic import make_single_view
 from sqmanip.perception.types import RecognizeOptions, RecognizeRequest
 
@@ -116,3 +117,42 @@ def test_hand_written_gradient_matches_finite_differences(kind):
             numeric[:, j] = (problem(u + step)[0] - problem(u - step)[0]) / (2 * h)
         scale = np.abs(numeric).max(1, keepdims=True)
         np.testing.assert_allclose(mine / scale, numeric / scale, rtol=0, atol=1e-7)
+
+
+def _flat_box_top_and_table(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """What a camera 0.7 m above sees of a 13 x 34 x 5 cm box (yawed 10 deg) lying on the table:
+    its top face 5 cm up, and the table around it (none under it)."""
+    c, s = np.cos(0.17), np.sin(0.17)
+    R = np.array([[c, s], [-s, c]])
+    top = rng.uniform([-0.065, -0.17], [0.065, 0.17], (512, 2)) @ R + [0.5, 0.15]
+    top = np.column_stack([top, 0.05 + rng.normal(0, 0.001, len(top))])
+    table = rng.uniform([0.2, -0.2, 0.0], [0.8, 0.5, 0.0], (4000, 3))
+    uv = (table[:, :2] - [0.5, 0.15]) @ R.T
+    table = table[(np.abs(uv[:, 0]) > 0.07) | (np.abs(uv[:, 1]) > 0.175)]
+    return top, table
+
+
+def test_a_segment_rests_on_the_support_unless_something_was_seen_under_it():
+    top, table = _flat_box_top_and_table(np.random.default_rng(0))
+    assert rests_on_support(top, table, contact=0.03)  # 5 cm up, nothing seen under it
+    under = np.column_stack([top[:20, :2], np.zeros(20)])
+    assert not rests_on_support(top, np.concatenate([table, under]), contact=0.03)  # table
+    neck = top + [0.0, 0.0, 0.10]
+    assert not rests_on_support(neck, top, contact=0.03)  # a body seen under it
+    assert rests_on_support(top, under, contact=0.06)  # within contact of the plane
+
+
+def test_flat_box_seen_only_from_above_is_fitted_down_to_the_table():
+    """Before, a segment 5 cm up counted as floating and its top face was fitted as a thin
+    plate (or a wall standing on its edge), which made the box ungraspable and unpushable."""
+    top, table = _flat_box_top_and_table(np.random.default_rng(1))
+    plane = PlaneFit(np.array([0.0, 0.0, 1.0]), 0.0, np.zeros(0, dtype=bool))
+    fit = fit_segments(
+        [top], plane=plane, viewpoint=np.array([0.45, 0.0, 0.72]), table_points=table,
+        deformable=False,
+    )[0].part  # fmt: skip
+    R, size = fit.pose[:3, :3], np.asarray(fit.size)
+    vertical = int(np.argmax(np.abs(R[2])))
+    assert abs(size[vertical] - 0.025) < 0.005
+    assert abs(fit.pose[2, 3] - 0.025) < 0.005
+    assert sorted(np.delete(size, vertical)) == pytest.approx([0.065, 0.17], abs=0.02)

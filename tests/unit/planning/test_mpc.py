@@ -12,6 +12,7 @@ import pytest
 import torch
 from planning_helpers import PredictOnly, PusherDynamics, box
 from sqmanip.dynamics import SQPDNet, cpu_config
+from sqmanip.geometry import Superquadric
 from sqmanip.geometry.transforms import decompose_pose, se2_matrix
 from sqmanip.grasping import always_reachable
 from sqmanip.planning import (
@@ -199,7 +200,26 @@ def test_without_any_grasp_a_large_target_ends_nearest_the_table_edge():
     final = _final_states(scene, [[[0.0, 0.1]], [[0.0, -0.42]], [[0.1, 0.2]]])
     ctx = _TaskContext.build(GraspingTask(0), scene)
     chosen = mpc._closest_to_graspable(scene, ctx, final, torch.arange(3))
-    assert chosen.tolist() == [1]  # centre 8 cm from the y = -0.5 edge
+    assert chosen.tolist() == [1]  # centre 2 cm past the y = -0.4 edge
+
+
+def test_a_large_box_lying_on_its_side_is_pushed_towards_a_side_edge_not_the_far_one():
+    """The box's height is its superquadric a1 (x axis up): its footprint, not (a1, a2), decides
+    that it is too wide to grasp. The far edge lies beyond the arm's reach and the near one at
+    the pedestal, so a side edge 15 cm away beats the far edge 2 cm away."""
+    from sqmanip.planning.mpc import _TaskContext, grasp_edges
+
+    assert grasp_edges(MPCConfig().table).tolist() == [False, False, True, True]
+    T = np.eye(4)
+    T[:3, :3] = [[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]  # x up, y along x, z along y
+    T[:3, 3] = (0.55, 0.0, 0.025)
+    lying = Superquadric(size=(0.025, 0.065, 0.17), shape=(0.2, 0.2), pose=T)
+    mpc = PushMPC(PusherDynamics(), reachability=always_reachable)
+    scene = PackedScene.from_objects([([lying], 0)])
+    final = _final_states(scene, [[[0.38, 0.0]], [[0.0, 0.25]], [[0.0, 0.1]]])
+    ctx = _TaskContext.build(GraspingTask(0), scene)
+    chosen = mpc._closest_to_graspable(scene, ctx, final, torch.arange(3))
+    assert chosen.tolist() == [1]
 
 
 def test_without_any_grasp_a_small_target_ends_farthest_from_its_neighbours():

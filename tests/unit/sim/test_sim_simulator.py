@@ -312,6 +312,29 @@ def test_grasp_plan_tries_more_ik_seeds_when_the_first_chain_hits_the_shelf(sim)
     sim.release()
 
 
+def test_grasp_whose_path_from_home_crosses_an_object_is_refused(sim):
+    """An edge grasp of a 34 x 13 x 5 cm box overhanging the table's side, approached
+    horizontally at 2.6 cm height: the chain from home turns the wrist by 2 rad on its way
+    down and sweeps the hand through the box (no other seed gives a free chain). Checked at 8
+    points, the path looked free and the move knocked the box off the table; checked every
+    ``GRASP_PATH_STEP`` rad, it is refused and the box stays where it was."""
+    yaw, phi = np.radians(13.4), np.arctan2(0.22, 0.98)
+    box = ObjectSpec(
+        "box",
+        position=(0.501, -0.278, 0.025),
+        orientation=(0.0, 0.0, np.sin(yaw / 2), np.cos(yaw / 2)),
+        size=(0.13, 0.34, 0.05),
+    )
+    sim.reset(SceneSpec(kind="tabletop", objects=(box,), seed=0))
+    z, y = np.array([np.cos(phi), np.sin(phi), 0.0]), np.array([0.0, 0.0, 1.0])
+    pose = np.eye(4)
+    pose[:3, :3] = np.stack([np.cross(y, z), y, z], -1)
+    pose[:3, 3] = (0.494, -0.433, 0.026)
+    with pytest.raises(PreconditionError):
+        sim.grasp(pose, 0.072)
+    np.testing.assert_allclose(sim.get_state().objects[0].position, box.position, atol=1e-3)
+
+
 def test_grasp_through_the_shelf_top_is_refused(sim):
     sim.reset(SceneSpec(kind="shelf"))
     s = sim.config.shelf

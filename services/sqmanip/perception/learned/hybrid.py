@@ -46,6 +46,8 @@ from ..fit import (
     _optimise,
     _Problem,
     check_equal_sizes,
+    rests_on_support,
+    seen_around,
     world_part,
 )
 from ..preprocess import PlaneFit
@@ -142,7 +144,8 @@ def _refine(segments, net_parts, plane, viewpoint, table_points, s, amodal, defo
                 X = np.concatenate([X, frame.to_local(hid[pick])])
             else:  # the whole predicted surface was seen: weight the observed points only
                 X = np.concatenate([X, X[rng.choice(P, n_hidden, replace=n_hidden > P)]])
-        contact = bool(use_plane and frame.to_local(pts)[:, 2].min() < s.support_contact)
+        seen = frame.to_local(seen_around(segments, i, table_points))
+        contact = use_plane and rests_on_support(frame.to_local(pts), seen, s.support_contact)
         F = np.zeros((0, 3))
         if amodal and viewpoint is not None:
             eye = frame.to_local(np.asarray(viewpoint, dtype=np.float64))
