@@ -413,6 +413,27 @@ def table_contacts(
     return hit.reshape(S, Q)
 
 
+ROBOT_BASE = (0.0, 0.0, 0.10)
+"""The simulator's Panda base position (``sqmanip.sim.config.ROBOT_BASE_POSITION``)."""
+ARM_REACH = 0.855
+"""The Panda's reach (m) from its base; a table edge farther than this is no place to grasp."""
+
+
+def grasp_edges(table: TableSpec, base: Sequence[float] = ROBOT_BASE) -> np.ndarray:
+    """``(4,)`` bool over the table edges ``x = lo, x = hi, y = lo, y = hi``: may an object
+    overhanging there be grasped? Not at the edge nearest the robot (its pedestal stands there)
+    nor at one whose nearest point lies beyond :data:`ARM_REACH` of the base."""
+    lo, hi, b = np.asarray(table.lo), np.asarray(table.hi), np.asarray(base[:2])
+    nearest = np.array(
+        [[lo[0], np.clip(b[1], lo[1], hi[1])], [hi[0], np.clip(b[1], lo[1], hi[1])],
+         [np.clip(b[0], lo[0], hi[0]), lo[1]], [np.clip(b[0], lo[0], hi[0]), hi[1]]]
+    )  # fmt: skip
+    dist = np.linalg.norm(nearest - b, axis=1)
+    ok = dist <= ARM_REACH
+    ok[int(np.argmin(dist))] = False
+    return ok
+
+
 # --- grasp candidates ------------------------------------------------------------------------------
 
 
@@ -491,6 +512,9 @@ class GraspFeasibility:
     ``reachability`` is the kinematic-feasibility callable of ``sqmanip.grasping``
     (``(K, 4, 4) -> bool (K,)``; the Panda IK in the stack, ``WorkspaceReachability`` as a
     stand-in). Candidates are widths within ``spec.rule.max_width`` and the gripper's opening.
+    A grasp whose TCP lies past a table edge the arm cannot use (:func:`grasp_edges` from the
+    robot ``base``) is infeasible. The IK reaches a box overhanging the near edge, beside the
+    pedestal, but the arm's links would hit the table and the pedestal on the way there.
     """
 
     def __init__(
@@ -500,6 +524,7 @@ class GraspFeasibility:
         spec: GraspCostSpec,
         gripper: GripperSpec,
         table: TableSpec,
+        base: Sequence[float] = ROBOT_BASE,
     ) -> None:
         self.reachability = reachability
         self.spec = spec
@@ -510,6 +535,7 @@ class GraspFeasibility:
             rule = dataclasses.replace(rule, max_width=gripper.max_opening)
         self.rule = rule
         self.cloud = GripperCloud.from_spec(gripper, spec.gripper_points)
+        self.blocked_edges = ~grasp_edges(table, base)
         self._last_candidates: tuple[bytes, Candidates] | None = None
 
     def candidates(self, parts: Sequence[Superquadric]) -> Candidates:
@@ -575,6 +601,14 @@ class GraspFeasibility:
             hit |= table_contacts(both, self.cloud, self.spec.mount, clearance).any(0)
         return hit
 
+    def past_blocked_edge(self, frames: torch.Tensor) -> torch.Tensor:
+        """``(Q,)`` bool: the TCP of ``frames (Q, 4, 4)`` lies past an edge the arm cannot use."""
+        xy = frames[:, :2, 3]
+        lo = torch.as_tensor(self.table.lo, dtype=xy.dtype)
+        hi = torch.as_tensor(self.table.hi, dtype=xy.dtype)
+        past = torch.stack([xy[:, 0] < lo[0], xy[:, 0] > hi[0], xy[:, 1] < lo[1], xy[:, 1] > hi[1]])
+        return (past & torch.as_tensor(self.blocked_edges)[:, None]).any(0)
+
     def _reachable(self, frames: torch.Tensor) -> np.ndarray:
         """Kinematic feasibility of ``frames (K, 4, 4)`` (last: IK is per pose)."""
         poses = frames.numpy()
@@ -616,7 +650,10 @@ class GraspFeasibility:
         s_idx, c_idx = ok.nonzero(as_tuple=True)
         if s_idx.numel() == 0:
             return frames, ok
-        ok[s_idx, c_idx] = ~self.static_collisions(frames[s_idx, c_idx])
+        ok[s_idx, c_idx] = ~(
+            self.static_collisions(frames[s_idx, c_idx])
+            | self.past_blocked_edge(frames[s_idx, c_idx])
+        )
         if scene.n_objects > 1 and bool(ok.any()):
             vals = gripper_part_values(
                 frames, self.cloud, scene.part_poses(states), scene, ~is_target, ok

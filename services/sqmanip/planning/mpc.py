@@ -53,9 +53,11 @@ from sqmanip.grasping.config import WorkspaceReachability
 
 from .config import MPCConfig, SamplerSpec, TableSpec
 from .costs import (
+    ROBOT_BASE,
     GraspFeasibility,
     GripperCloud,
     PackedScene,
+    grasp_edges,
     grasping_cost,
     gripper_part_values,
     interactive_moving_cost,
@@ -88,27 +90,6 @@ __all__ = [
     "table_workspace",
     "rollout",
 ]
-
-ROBOT_BASE = (0.0, 0.0, 0.10)
-"""The simulator's Panda base position (``sqmanip.sim.config.ROBOT_BASE_POSITION``)."""
-ARM_REACH = 0.855
-"""The Panda's reach (m) from its base; a table edge farther than this is no place to grasp."""
-
-
-def grasp_edges(table: TableSpec, base: Sequence[float] = ROBOT_BASE) -> np.ndarray:
-    """``(4,)`` bool over the table edges ``x = lo, x = hi, y = lo, y = hi``: may an object
-    overhanging there be grasped? Not at the edge nearest the robot (its pedestal stands there)
-    nor at one whose nearest point lies beyond :data:`ARM_REACH` of the base."""
-    lo, hi, b = np.asarray(table.lo), np.asarray(table.hi), np.asarray(base[:2])
-    nearest = np.array(
-        [[lo[0], np.clip(b[1], lo[1], hi[1])], [hi[0], np.clip(b[1], lo[1], hi[1])],
-         [np.clip(b[0], lo[0], hi[0]), lo[1]], [np.clip(b[0], lo[0], hi[0]), hi[1]]]
-    )  # fmt: skip
-    dist = np.linalg.norm(nearest - b, axis=1)
-    ok = dist <= ARM_REACH
-    ok[int(np.argmin(dist))] = False
-    return ok
-
 
 # --- dynamics ------------------------------------------------------------------------------------
 

@@ -24,7 +24,7 @@ from sqmanip.planning import (
     objects_off_table,
     singulation_cost,
 )
-from sqmanip.planning.costs import GripperCloud
+from sqmanip.planning.costs import GripperCloud, grasp_edges
 
 
 def poses_at(*xyz) -> torch.Tensor:
@@ -139,6 +139,22 @@ def test_flat_box_is_graspable_only_where_it_overhangs_the_table_edge():
     assert grasp_cost_now([([box(0.45, 0.0, flat)], 0)]) == 1.0
     assert grasp_cost_now([([box(0.45, 0.38, flat)], 0)]) == 0.0  # 6 cm past y = 0.4
     assert grasp_cost_now([([box(0.45, 0.38, flat)], 0)], edge_grasps=False) == 1.0
+
+
+def test_no_grasp_past_the_edge_at_the_robot_or_beyond_its_reach():
+    """The same flat box overhanging the near edge (x = 0.15, beside the pedestal) by 10 cm is
+    not graspable: the hand fits there, but the arm would reach it through the table. It is
+    graspable for a robot standing elsewhere, for which that edge is a side edge."""
+    near = [([box(0.13, 0.25, (0.16, 0.16, 0.03))], 0)]
+    assert grasp_edges(TableSpec()).tolist() == [False, False, True, True]
+    assert grasp_cost_now(near) == grasp_cost_now(near, mount=None) == 1.0
+    scene = PackedScene.from_objects(near)
+    elsewhere = GraspFeasibility(
+        always_reachable, spec=GraspCostSpec(mount=None), gripper=PANDA_HAND, table=TableSpec(),
+        base=(0.55, 0.05, 0.10),
+    )  # fmt: skip
+    assert grasp_edges(TableSpec(), (0.55, 0.05, 0.10)).tolist() == [True, True, True, False]
+    assert bool(elsewhere.feasible(scene, scene.poses[None], 0).any())
 
 
 def test_feasibility_moves_with_predicted_states():

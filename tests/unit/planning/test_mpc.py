@@ -207,7 +207,8 @@ def test_a_large_box_lying_on_its_side_is_pushed_towards_a_side_edge_not_the_far
     """The box's height is its superquadric a1 (x axis up): its footprint, not (a1, a2), decides
     that it is too wide to grasp. The far edge lies beyond the arm's reach and the near one at
     the pedestal, so a side edge 15 cm away beats the far edge 2 cm away."""
-    from sqmanip.planning.mpc import _TaskContext, grasp_edges
+    from sqmanip.planning.costs import grasp_edges
+    from sqmanip.planning.mpc import _TaskContext
 
     assert grasp_edges(MPCConfig().table).tolist() == [False, False, True, True]
     T = np.eye(4)
