@@ -276,9 +276,14 @@ class GripperCloud:
 
     @classmethod
     def from_spec(
-        cls, spec: GripperSpec, n_points: int, opening: float | None = None
+        cls,
+        spec: GripperSpec,
+        n_points: int,
+        opening: float | None = None,
+        include_wrist: bool = False,
     ) -> GripperCloud:
-        pts = np.array(gripper_points(spec, n_points, opening=opening), dtype=np.float64)
+        pts = gripper_points(spec, n_points, opening=opening, include_wrist=include_wrist)
+        pts = np.array(pts, dtype=np.float64)
         label = np.full(len(pts), -1)
         for b, (lo, hi) in enumerate(gripper_boxes(spec, opening)):
             inside = ((pts >= lo - 1e-9) & (pts <= hi + 1e-9)).all(-1) & (label < 0)
@@ -535,6 +540,9 @@ class GraspFeasibility:
             rule = dataclasses.replace(rule, max_width=gripper.max_opening)
         self.rule = rule
         self.cloud = GripperCloud.from_spec(gripper, spec.gripper_points)
+        # against the table and the mount, links 7 and 6 behind the hand count too: a low side
+        # grasp at the table edge keeps the hand past the edge, while the wrist is over the table
+        self.static_cloud = GripperCloud.from_spec(gripper, spec.gripper_points, include_wrist=True)
         self.blocked_edges = ~grasp_edges(table, base)
         self._last_candidates: tuple[bytes, Candidates] | None = None
 
@@ -590,15 +598,15 @@ class GraspFeasibility:
         return out
 
     def static_collisions(self, frames: torch.Tensor) -> torch.Tensor:
-        """``(Q,)`` bool: the hand at ``frames (Q, 4, 4)`` or at its pre-grasp pose touches the
-        table or the robot mount."""
+        """``(Q,)`` bool: the hand or the wrist (links 6-7) at ``frames (Q, 4, 4)`` or at its
+        pre-grasp pose touches the table or the robot mount."""
         back = torch.eye(4, dtype=frames.dtype)
         back[2, 3] = -self.spec.approach_distance
         both = torch.stack([frames, frames @ back])  # (2, Q, 4, 4)
         clearance = self.spec.table_clearance
-        hit = table_contacts(both, self.cloud, self.table, clearance).any(0)
+        hit = table_contacts(both, self.static_cloud, self.table, clearance).any(0)
         if self.spec.mount is not None:
-            hit |= table_contacts(both, self.cloud, self.spec.mount, clearance).any(0)
+            hit |= table_contacts(both, self.static_cloud, self.spec.mount, clearance).any(0)
         return hit
 
     def past_blocked_edge(self, frames: torch.Tensor) -> torch.Tensor:

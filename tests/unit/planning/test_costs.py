@@ -218,13 +218,13 @@ def test_gripper_part_values_equals_dense_evaluation():
 
 
 def test_pre_grasp_hand_must_clear_the_robot_mount():
-    # a top-down grasp whose hand is clear at the grasp pose but rises into an overhead slab
-    # (z 0.45-0.50) when backed off 10 cm to its pre-grasp pose
+    # a top-down grasp whose hand and wrist (links 6-7, up to z 0.60) are clear at the grasp
+    # pose but rise into an overhead slab (z 0.65-0.70) when backed off 10 cm to the pre-grasp
     down = np.eye(4)
     down[:3, :3] = np.diag([1.0, -1.0, -1.0])  # tool z (approach) points down
     down[:3, 3] = (0.45, 0.0, 0.30)
     frames = torch.as_tensor(down)[None]
-    slab = TableSpec(center=(0.45, 0.0), size=(0.3, 0.3), height=0.50, thickness=0.05)
+    slab = TableSpec(center=(0.45, 0.0), size=(0.3, 0.3), height=0.70, thickness=0.05)
     assert checker(mount=slab).static_collisions(frames).tolist() == [True]
     assert checker(mount=slab, approach_distance=0.0).static_collisions(frames).tolist() == [False]
     assert checker(mount=None).static_collisions(frames).tolist() == [False]
