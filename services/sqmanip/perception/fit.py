@@ -172,7 +172,7 @@ UNDER_MIN_POINTS = 3
 """A segment with fewer seen points than this under it rests on the support (stray points)."""
 
 
-def rests_on_support(X: np.ndarray, seen: np.ndarray | None, contact: float) -> bool:
+def rests_on_support(X: np.ndarray, seen: np.ndarray, contact: float) -> bool:
     """Does the segment ``X (P, 3)`` (support-plane frame, z up) stand on the support?
 
     Yes if its lowest point is within ``contact`` of the plane. Otherwise yes too if nothing was
@@ -184,8 +184,6 @@ def rests_on_support(X: np.ndarray, seen: np.ndarray | None, contact: float) -> 
     """
     z_min = float(X[:, 2].min())
     if z_min < contact:
-        return True
-    if seen is None or len(seen) == 0:
         return True
     q = seen[seen[:, 2] < z_min, :2]
     if len(q) < UNDER_MIN_POINTS:

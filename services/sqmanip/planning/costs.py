@@ -424,6 +424,16 @@ ARM_REACH = 0.855
 """The Panda's reach (m) from its base; a table edge farther than this is no place to grasp."""
 
 
+def edge_gaps(xy: torch.Tensor, table: TableSpec) -> torch.Tensor:
+    """``(..., 4)`` signed distances of points ``xy (..., 2)`` inside the table edges ``x = lo,
+    x = hi, y = lo, y = hi`` (the order of :func:`grasp_edges`); negative past an edge."""
+    lo = torch.as_tensor(table.lo, dtype=xy.dtype)
+    hi = torch.as_tensor(table.hi, dtype=xy.dtype)
+    return torch.stack(
+        [xy[..., 0] - lo[0], hi[0] - xy[..., 0], xy[..., 1] - lo[1], hi[1] - xy[..., 1]], -1
+    )
+
+
 def grasp_edges(table: TableSpec, base: Sequence[float] = ROBOT_BASE) -> np.ndarray:
     """``(4,)`` bool over the table edges ``x = lo, x = hi, y = lo, y = hi``: may an object
     overhanging there be grasped? Not at the edge nearest the robot (its pedestal stands there)
@@ -611,11 +621,8 @@ class GraspFeasibility:
 
     def past_blocked_edge(self, frames: torch.Tensor) -> torch.Tensor:
         """``(Q,)`` bool: the TCP of ``frames (Q, 4, 4)`` lies past an edge the arm cannot use."""
-        xy = frames[:, :2, 3]
-        lo = torch.as_tensor(self.table.lo, dtype=xy.dtype)
-        hi = torch.as_tensor(self.table.hi, dtype=xy.dtype)
-        past = torch.stack([xy[:, 0] < lo[0], xy[:, 0] > hi[0], xy[:, 1] < lo[1], xy[:, 1] > hi[1]])
-        return (past & torch.as_tensor(self.blocked_edges)[:, None]).any(0)
+        past = edge_gaps(frames[:, :2, 3], self.table) < 0.0  # (Q, 4)
+        return (past & torch.as_tensor(self.blocked_edges)).any(-1)
 
     def _reachable(self, frames: torch.Tensor) -> np.ndarray:
         """Kinematic feasibility of ``frames (K, 4, 4)`` (last: IK is per pose)."""

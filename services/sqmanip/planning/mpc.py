@@ -57,6 +57,7 @@ from .costs import (
     GraspFeasibility,
     GripperCloud,
     PackedScene,
+    edge_gaps,
     grasp_edges,
     grasping_cost,
     gripper_part_values,
@@ -534,11 +535,8 @@ class PushMPC:
         horizontal = a[torch.arange(3) != int(up.argmax())]
         if 2.0 * float(horizontal.min()) > self.config.gripper.max_opening:
             table = self.config.table
-            lo = torch.as_tensor(table.lo, dtype=xy.dtype)
-            hi = torch.as_tensor(table.hi, dtype=xy.dtype)
-            gap = torch.cat([xy[:, t] - lo, hi - xy[:, t]], -1)[:, [0, 2, 1, 3]]  # x lo, x hi, ..
             usable = torch.as_tensor(grasp_edges(table, ROBOT_BASE))
-            score = gap[:, usable].amin(-1)  # distance to the nearest usable edge
+            score = edge_gaps(xy[:, t], table)[:, usable].amin(-1)  # nearest usable edge
         elif xy.shape[1] > 1:
             d = torch.linalg.vector_norm(xy - xy[:, t : t + 1], dim=-1)  # (T, N)
             d[:, t] = math.inf
