@@ -15,8 +15,12 @@ grasp plan (``Simulator.plan_grasp``) tries the seed and the ``READY`` pose firs
 extra seeds when that chain collides; here only the first two are tried (``restarts=1``), so a
 pose accepted here converges in the simulator from the very same seed to the very same joint
 angles (the iteration is deterministic), while a pose only another seed could reach is
-rejected: the check is *conservative*, never optimistic. Collisions of the
-arm with the table are not part of it (the simulator checks those; the planner checks the hand).
+rejected: the check is *conservative*, never optimistic. ``obstacles`` (world boxes, the table)
+add the simulator's arm collision test: a chain whose pre-grasp, grasp or lift configuration
+puts a vertex of an arm link's collision mesh (links 1-7, :meth:`PandaKinematics.link_points`)
+within ``clearance`` of a box is unreachable. The planner checks the hand itself; a low side
+grasp at the table edge can have the hand clear while link 6 cuts the table's corner, which the
+simulator refuses ("pre-grasp configuration collides with table").
 
 Frames (checked against both sides): the planner's grasp pose and the simulator's tool pose both
 put the origin at the TCP between the fingers, ``z`` = approach, ``y`` = closing axis. They differ
@@ -46,6 +50,7 @@ from __future__ import annotations
 
 import threading
 from collections import OrderedDict
+from collections.abc import Sequence
 from functools import lru_cache
 
 import numpy as np
@@ -104,7 +109,8 @@ class PandaIKReachability:
     simulator seeds the pre-grasp IK with (tabletop home), ``approach_distance`` the pre-grasp /
     lift offset (the simulator's 0.10 m). ``check_lift=False`` skips the lift pose. ``restarts``
     and ``max_iters`` are passed to the IK; keep ``restarts <= 1`` and ``max_iters <= 200`` (the
-    simulator's) for the conservative guarantee in the module docstring. ``symmetric`` also
+    simulator's) for the conservative guarantee in the module docstring. ``obstacles`` are
+    axis-aligned world boxes ``(lo (3,), hi (3,))`` the arm links must keep ``clearance`` from. ``symmetric`` also
     accepts a pose whose half turn about the approach axis is reachable (send
     :meth:`executable_pose` to the simulator then).
     """
@@ -121,6 +127,8 @@ class PandaIKReachability:
         max_iters: int = 200,
         cache_size: int = 4096,
         symmetric: bool = True,
+        obstacles: Sequence[tuple[Sequence[float], Sequence[float]]] = (),
+        clearance: float = 0.005,
     ) -> None:
         base = default_base_pose() if base_pose is None else np.asarray(base_pose, np.float64)
         if base.shape != (4, 4) or not np.isfinite(base).all():
@@ -135,6 +143,11 @@ class PandaIKReachability:
                 f"need restarts >= 1, max_iters >= 1, cache_size >= 0; got {restarts}, "
                 f"{max_iters}, {cache_size}"
             )
+        boxes = np.asarray(obstacles, dtype=np.float64).reshape(-1, 2, 3)
+        if not np.isfinite(boxes).all() or (boxes[:, 0] > boxes[:, 1]).any() or clearance < 0:
+            raise ValidationError("obstacles must be finite (lo, hi) boxes and clearance >= 0")
+        self.obstacles = boxes
+        self.clearance = float(clearance)
         self.base_pose = base
         self.q_home = q
         self.approach_distance = float(approach_distance)
@@ -167,7 +180,8 @@ class PandaIKReachability:
 
     def solve(self, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """Joint angles ``(q_pre, q_grasp, q_lift)`` (7,) each for one planner grasp ``pose``
-        (4 x 4) sent as is (no twin), as the simulator finds them, or None when a solve fails."""
+        (4 x 4) sent as is (no twin), as the simulator finds them, or None when a solve fails
+        or a configuration's arm links hit an obstacle."""
         T = sim_tool_pose(np.asarray(pose, dtype=np.float64), self.gripper)
         kin = self.kinematics
         kw = {"restarts": self.restarts, "max_iters": self.max_iters}
@@ -180,12 +194,23 @@ class PandaIKReachability:
         grasp = kin.ik(T, pre.q, rng=rng, **kw)
         if not grasp.success:
             return None
-        if not self.check_lift:
-            return pre.q, grasp.q, grasp.q
-        lift = kin.ik(lifted(T, d), grasp.q, rng=rng, **kw)
-        if not lift.success:
+        chain = (pre.q, grasp.q, grasp.q)
+        if self.check_lift:
+            lift = kin.ik(lifted(T, d), grasp.q, rng=rng, **kw)
+            if not lift.success:
+                return None
+            chain = (pre.q, grasp.q, lift.q)
+        if any(self._hits_obstacle(q) for q in chain):
             return None
-        return pre.q, grasp.q, lift.q
+        return chain
+
+    def _hits_obstacle(self, q: np.ndarray) -> bool:
+        if not len(self.obstacles):
+            return False
+        P = self.kinematics.link_points(q)
+        centre = self.obstacles.mean(1)[:, None]  # (boxes, 1, 3)
+        half = 0.5 * (self.obstacles[:, 1] - self.obstacles[:, 0])[:, None] + self.clearance
+        return bool((np.abs(P - centre) <= half).all(-1).any())
 
     def _variants(self, pose: np.ndarray) -> list[np.ndarray]:
         """The pose and (if ``symmetric``) its half turn about z, nearer the home tool first."""

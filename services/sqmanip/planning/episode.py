@@ -483,16 +483,16 @@ across, 5 cm high) stays graspable only across its height, at the table edge (ou
 
 def sim_planner(dynamics, n_sequences: int = 100, *, reachability=None, **config) -> PushMPC:
     """A :class:`PushMPC` set up for the simulator: its table (:func:`sim_table`), pushes sampled
-    inside the simulator's push workspace (``Simulator.push`` refuses others), the Panda IK
-    (:class:`~sqmanip.grasping.reachability.PandaIKReachability`) as the grasp reachability, and
+    inside the simulator's push workspace (``Simulator.push`` refuses others), the Panda IK with
+    the table as the arm's obstacle (:func:`.scenarios.sim_reachability`) as the grasp
+    reachability, and
     grasps up to :data:`SIM_GRASP_WIDTH` wide (unless ``config`` gives ``grasp``)."""
-    from sqmanip.grasping.reachability import PandaIKReachability
     from sqmanip.grasping.types import RuleOptions
     from sqmanip.sim.simulator import workspace_bounds
 
     from .config import GraspCostSpec, MPCConfig
     from .mpc import CandidateSampler
-    from .scenarios import sim_table
+    from .scenarios import sim_reachability, sim_table
 
     config.setdefault("grasp", GraspCostSpec(rule=RuleOptions(max_width=SIM_GRASP_WIDTH)))
     cfg = MPCConfig(n_sequences=n_sequences, table=sim_table(), **config)
@@ -500,7 +500,7 @@ def sim_planner(dynamics, n_sequences: int = 100, *, reachability=None, **config
         dynamics,
         config=cfg,
         sampler=CandidateSampler(workspace_bounds(), cfg.sampler),
-        reachability=reachability or PandaIKReachability(),
+        reachability=reachability or sim_reachability(),
     )
 
 

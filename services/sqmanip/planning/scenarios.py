@@ -110,6 +110,15 @@ def sim_table() -> TableSpec:
     )
 
 
+def sim_reachability():
+    """The simulator's Panda IK reachability with its table as the arm links' obstacle (the
+    grasp check of every simulated episode, the planner service's included)."""
+    from sqmanip.grasping.reachability import PandaIKReachability
+
+    t = sim_table()
+    return PandaIKReachability(obstacles=[((*t.lo, t.height - t.thickness), (*t.hi, t.height))])
+
+
 @dataclasses.dataclass(frozen=True)
 class Scenario:
     """One episode's start: the scene to reset the simulator with and the task on its ids."""
@@ -306,14 +315,13 @@ def _graspable_now(specs: Sequence[ObjectSpec], target: int) -> bool:
     """B.5.13 on the ground truth: does the target already have a feasible grasp?"""
 
     from sqmanip.grasping.config import PANDA_HAND
-    from sqmanip.grasping.reachability import PandaIKReachability
 
     from .config import GraspCostSpec
     from .costs import GraspFeasibility, PackedScene
 
     scene = PackedScene.from_objects([([s.superquadric()], i) for i, s in enumerate(specs)])
     feas = GraspFeasibility(
-        PandaIKReachability(), spec=GraspCostSpec(), gripper=PANDA_HAND, table=sim_table()
+        sim_reachability(), spec=GraspCostSpec(), gripper=PANDA_HAND, table=sim_table()
     )
     return bool(feas.feasible(scene, scene.poses[None], target).any())
 

@@ -243,9 +243,9 @@ class PlannerServicer(planner_pb2_grpc.PlannerServicer):
     @property
     def reachability(self):
         if self._reachability is None:
-            from sqmanip.grasping.reachability import PandaIKReachability
+            from .scenarios import sim_reachability
 
-            self._reachability = PandaIKReachability()
+            self._reachability = sim_reachability()
         return self._reachability
 
     def dynamics_client(self) -> RemoteDynamics:

@@ -14,6 +14,7 @@ between the fingertips, z = approach direction, y = finger closing axis.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 
 import numpy as np
@@ -25,6 +26,7 @@ ARM_JOINTS = tuple(f"panda_joint{i}" for i in range(1, 8))
 FINGER_JOINTS = ("panda_finger_joint1", "panda_finger_joint2")
 TCP_FRAME = "panda_grasptarget"
 HAND_FRAME = "panda_hand"
+ARM_LINKS = tuple(f"panda_link{i}" for i in range(1, 8))
 READY = np.array([0.0, -0.785398, 0.0, -2.356194, 0.0, 1.570796, 0.785398])
 """Franka's 'ready' configuration, the first IK restart."""
 TCP_OFFSET = 0.105
@@ -32,6 +34,17 @@ TCP_OFFSET = 0.105
 STALL_WINDOW, STALL_START = 20, 30
 """An IK run stops when its error fell less than 1 % over ``STALL_WINDOW`` iterations, checked
 from iteration ``STALL_START`` on (see :meth:`PandaKinematics._solve`)."""
+
+
+@functools.cache
+def link_vertices(link: str) -> np.ndarray:
+    """Vertices ``(V, 3)`` of a link's collision mesh in the link frame (the URDF places each
+    mesh at its link's origin; PyBullet collides a moving link's convex hull of them)."""
+    name = link.removeprefix("panda_") + ".obj"
+    path = os.path.join(os.path.dirname(PANDA_URDF), "meshes", "collision", name)
+    with open(path) as f:
+        rows = [line.split()[1:4] for line in f if line.startswith("v ")]
+    return np.asarray(rows, dtype=np.float64)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -84,6 +97,16 @@ class PandaKinematics:
         fid = self.model.getFrameId(frame)
         pin.framesForwardKinematics(self.model, self.data, np.asarray(q, np.float64))
         return self.base_pose @ self.data.oMf[fid].homogeneous
+
+    def link_points(self, q: np.ndarray, links: tuple[str, ...] = ARM_LINKS) -> np.ndarray:
+        """World points ``(M, 3)``: the collision-mesh vertices of ``links`` at joint angles
+        ``q (7,)`` (one forward kinematics pass)."""
+        pin.framesForwardKinematics(self.model, self.data, np.asarray(q, np.float64))
+        out = []
+        for link in links:
+            T = self.base_pose @ self.data.oMf[self.model.getFrameId(link)].homogeneous
+            out.append(link_vertices(link) @ T[:3, :3].T + T[:3, 3])
+        return np.concatenate(out)
 
     def ik(
         self,
