@@ -115,9 +115,16 @@ def make_catalogue(
     box_heights: tuple[float, float] = (0.04, 0.12),
     cyl_radii: tuple[float, float] = (0.02, 0.045),
     cyl_heights: tuple[float, float] = (0.04, 0.12),
+    large_boxes: int = 0,
+    large_box_sides: tuple[tuple[float, float], tuple[float, float]] = ((0.08, 0.16), (0.12, 0.36)),
+    large_box_heights: tuple[float, float] = (0.025, 0.07),
 ) -> list[CatalogueObject]:
     """``per_class`` boxes then ``per_class`` cylinders with seeded random sizes (4.5); the first
-    half of each class is known, the second half unknown. Ids are list indices."""
+    half of each class is known, the second half unknown. Then ``large_boxes`` known boxes of the
+    MPC scenes' YCB sizes (:mod:`sqmanip.planning.scenarios`: the 17.5 cm sugar box, the 34 cm
+    "grasping large" box, boxes 2.5-3.5 cm flat), which the 4-9 cm boxes leave outside SQPD-Net's
+    data; sides from ``large_box_sides``. They are drawn last, so the other sizes and ids do not
+    depend on them. Ids are list indices."""
     if per_class < 2:
         raise ValueError(f"per_class must be >= 2, got {per_class}")
     rng = np.random.default_rng([seed, 4_5])
@@ -131,6 +138,10 @@ def make_catalogue(
         r = float(rng.uniform(*cyl_radii))
         h = float(rng.uniform(*cyl_heights))
         out.append(CatalogueObject(len(out), "cylinder", (2 * r, 2 * r, h), k < per_class // 2))
+    for _ in range(large_boxes):
+        sx, sy = (float(rng.uniform(*side)) for side in large_box_sides)
+        sz = float(rng.uniform(*large_box_heights))
+        out.append(CatalogueObject(len(out), "box", (sx, sy, sz), True))
     return out
 
 
@@ -160,6 +171,9 @@ class GenerationConfig:
     """Half the default wrist camera's resolution (same field of view)."""
     push_retries: int = 10
     catalogue_seed: int = 0
+    large_boxes: int = 0
+    """Known YCB-sized boxes added to the catalogue (:func:`make_catalogue`); 0 keeps the
+    36-object catalogue."""
     push_transit: str = "teleport"
     """``SimConfig.push_transit`` of the generating simulator: ``teleport`` skips the arm's
     free-space moves home and back (same resting poses, about 1.5x faster per tuple)."""
@@ -171,6 +185,8 @@ class GenerationConfig:
             raise ValueError(f"shard_size must be >= 1, got {self.shard_size}")
         if not 1 <= self.max_objects <= 4:
             raise ValueError(f"max_objects must be in 1..4, got {self.max_objects}")
+        if self.large_boxes < 0:
+            raise ValueError(f"large_boxes must be >= 0, got {self.large_boxes}")
         if self.max_pushes < 1:
             raise ValueError(f"max_pushes must be >= 1, got {self.max_pushes}")
         if self.cloud_points < 0:
@@ -366,7 +382,7 @@ def generate_shard(task: ShardTask, config: GenerationConfig) -> dict[str, Any]:
     if path.is_file():
         return {"index": task.index, "count": task.count, "seconds": 0.0, "skipped": True}
     t0 = time.perf_counter()
-    catalogue = [o for o in make_catalogue(config.catalogue_seed)
+    catalogue = [o for o in make_catalogue(config.catalogue_seed, large_boxes=config.large_boxes)
                  if o.known == (task.split != "unknown")]  # fmt: skip
     sim = _simulator(config)
     tuples: list[Any] = []
@@ -478,6 +494,7 @@ def _run_cli(args: argparse.Namespace) -> int:
     config = GenerationConfig(
         seed=args.seed, scale=args.scale, shard_size=args.shard_size,
         cloud_points=0 if args.no_cloud else args.cloud_points, push_transit=args.push_transit,
+        large_boxes=args.large_boxes,
     )  # fmt: skip
     manifests = generate_dataset(
         args.out, config, splits=args.splits, workers=args.workers, ray_address=args.ray_address
@@ -505,6 +522,9 @@ def add_cli(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--cloud-points", type=int, default=1024, help="observed points per tuple")
     p.add_argument("--no-cloud", action="store_true", help="skip the camera (faster)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--large-boxes", type=int, default=0, metavar="N",
+                   help="add N known boxes of 8-16 x 12-36 x 2.5-7 cm (the MPC scenes' YCB "
+                        "sizes, the 34 cm 'grasping large' box among them) to the catalogue")  # fmt: skip
     p.add_argument("--push-transit", choices=("teleport", "move"), default="teleport",
                    help="teleport the arm between pushes (default, faster) or drive it; the "
                         "pushes themselves are simulated alike")  # fmt: skip

@@ -107,6 +107,20 @@ def test_catalogue_has_18_boxes_and_18_cylinders_split_9_9():
     assert make_catalogue(0) == cat and make_catalogue(1) != cat
 
 
+def test_large_boxes_extend_the_catalogue_without_changing_it():
+    base = make_catalogue(0)
+    cat = make_catalogue(0, large_boxes=5)
+    assert cat[:36] == base
+    extra = cat[36:]
+    assert [o.id for o in extra] == list(range(36, 41))
+    for o in extra:
+        assert o.kind == "box" and o.known
+        sx, sy, sz = o.size
+        assert 0.08 <= sx <= 0.16 and 0.12 <= sy <= 0.36 and 0.025 <= sz <= 0.07
+    with pytest.raises(ValueError, match="large_boxes must be >= 0"):
+        GenerationConfig(large_boxes=-1)
+
+
 def test_unknown_split_plans_equal_groups_per_object_count(tmp_path):
     tasks = plan_shards(tmp_path, "unknown", 1200, GenerationConfig(shard_size=100))
     per_count = {k: sum(t.count for t in tasks if t.n_objects == k) for k in range(1, 5)}
