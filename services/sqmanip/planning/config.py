@@ -135,8 +135,15 @@ class GraspCostSpec:
     """Also add side grasps whose fingers close across the object's *vertical* axis (a flat object
     held by its rim). They collide with the table unless the object overhangs the table edge, which
     is how the MPC learns to push a large flat box to the edge (4.6.3, Fig. 4.16 last row)."""
+    edge_turns_deg: tuple[float, ...] = (0.0, -20.0, 20.0)
+    """Each edge grasp also turned by these angles about the vertical through its TCP
+    (:func:`~sqmanip.planning.costs.edge_grasp_candidates`): with ``(0,)`` alone, a large box
+    overhanging a side edge at a yaw of about -15 degrees on one side (+15 on the other) is not
+    graspable before its centre is within 2 cm of the edge."""
     max_candidates: int = 30
-    """Cap on rule-based + edge candidates together (B.5: "maximum 30 grasp poses")."""
+    """Cap on the rule-based candidates (B.5: "maximum 30 grasp poses")."""
+    max_edge_candidates: int = 72
+    """Cap on the edge candidates (4 directions x 6 positions x 3 turns)."""
     gripper_points: int = 512
     """``n_gr`` points on the open gripper (B.5)."""
     table_clearance: float = 0.002
@@ -159,9 +166,16 @@ class GraspCostSpec:
             raise ValidationError(
                 f"grasp.approach_distance must be finite and >= 0, got {self.approach_distance!r}"
             )
-        if not isinstance(self.max_candidates, int) or self.max_candidates < 1:
+        for name in ("max_candidates", "max_edge_candidates"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or v < 1:
+                raise ValidationError(f"grasp.{name} must be an integer >= 1, got {v!r}")
+        if not self.edge_turns_deg or not all(
+            math.isfinite(float(a)) and abs(float(a)) < 90.0 for a in self.edge_turns_deg
+        ):
             raise ValidationError(
-                f"grasp.max_candidates must be an integer >= 1, got {self.max_candidates!r}"
+                "grasp.edge_turns_deg must hold at least one finite angle in (-90, 90), got "
+                f"{self.edge_turns_deg!r}"
             )
         if not isinstance(self.gripper_points, int) or not 16 <= self.gripper_points <= 100_000:
             raise ValidationError(

@@ -26,7 +26,7 @@ from sqmanip.errors import ValidationError
 from sqmanip.geometry import Superquadric
 from sqmanip.geometry.raycast import bound_box, bound_radius
 from sqmanip.geometry.superquadric import implicit_homogeneous
-from sqmanip.geometry.transforms import se3_inverse
+from sqmanip.geometry.transforms import rot_z, se3_inverse
 from sqmanip.grasping.config import Reachability
 from sqmanip.grasping.gripper import gripper_boxes, gripper_points
 from sqmanip.grasping.rule_based import part_box, rule_based_candidates
@@ -460,6 +460,7 @@ def edge_grasp_candidates(
     parts: Sequence[Superquadric],
     options: RuleOptions,
     up: np.ndarray = np.array([0.0, 0.0, 1.0]),
+    turns_deg: Sequence[float] = (0.0,),
 ) -> Candidates:
     """Side grasps that close across a part's *vertical* axis (world frame), ``options`` style.
 
@@ -470,9 +471,15 @@ def edge_grasp_candidates(
     The rule-based generator of ``sqmanip.grasping`` closes only across horizontal axes, so a
     flat object wider than the opening has no candidate there; these reach its rim where it
     overhangs the table (4.6.3 "grasping large").
+
+    Each grasp comes once per angle of ``turns_deg``, turned by it about the world z axis through
+    its TCP (fingers still on the top and bottom faces). A plate overhanging a side edge at an angle
+    is reached by the arm only from its own side with the wrist off the table; the unturned hand,
+    aligned with the plate's axes, then has its wrist over the table on one of the two yaws.
     """
     poses, widths, contacts = [], [], []
     e = np.eye(3)
+    turns = [rot_z(math.radians(float(a))).double().numpy() for a in turns_deg]
     for part in parts:
         c, b = part_box(part)
         R_o, t_o = part.pose[:3, :3], part.pose[:3, 3]
@@ -494,14 +501,15 @@ def edge_grasp_candidates(
                     p = c.copy()
                     p[ha] = c[ha] - sign * (b[ha] - min(options.grasp_depth, b[ha]))
                     p[hb] = s
-                    T = np.eye(4)
-                    T[:3, :3] = R_o @ R
-                    T[:3, 3] = R_o @ p + t_o
-                    poses.append(T)
-                    widths.append(w)
                     c1, c2 = p.copy(), p.copy()
                     c1[iv], c2[iv] = c[iv] - b[iv], c[iv] + b[iv]
-                    contacts.append(np.stack([R_o @ c1 + t_o, R_o @ c2 + t_o]))
+                    for turn in turns:
+                        T = np.eye(4)
+                        T[:3, :3] = turn @ R_o @ R
+                        T[:3, 3] = R_o @ p + t_o
+                        poses.append(T)
+                        widths.append(w)
+                        contacts.append(np.stack([R_o @ c1 + t_o, R_o @ c2 + t_o]))
     if not poses:
         return Candidates.empty()
     return Candidates(
@@ -557,7 +565,7 @@ class GraspFeasibility:
         self._last_candidates: tuple[bytes, Candidates] | None = None
 
     def candidates(self, parts: Sequence[Superquadric]) -> Candidates:
-        """Rule-based (B.5) plus edge candidates of one object, world frame, at most the cap.
+        """Rule-based (B.5) plus edge candidates of one object, world frame, each at most its cap.
 
         The last object's candidates are kept: a planning step asks for the same target's up to
         four times (current cost, terminal cost, earliest-success tie-break), ~40 ms each.
@@ -571,15 +579,17 @@ class GraspFeasibility:
 
     def _candidates(self, parts: Sequence[Superquadric]) -> Candidates:
         cands = rule_based_candidates(parts, options=self.rule, dtype=torch.float64)
+        cands = _cap(cands, self.spec.max_candidates)
         if self.spec.edge_grasps:
-            edge = edge_grasp_candidates(parts, self.rule)
+            edge = edge_grasp_candidates(parts, self.rule, turns_deg=self.spec.edge_turns_deg)
             if len(edge):
+                edge = _cap(edge, self.spec.max_edge_candidates)
                 cands = Candidates(
                     torch.cat([cands.poses, edge.poses]),
                     torch.cat([cands.widths, edge.widths]),
                     torch.cat([cands.contacts, edge.contacts]),
                 )
-        return _cap(cands, self.spec.max_candidates)
+        return cands
 
     def feasible(self, scene: PackedScene, states: torch.Tensor, target: int) -> torch.Tensor:
         """``(S, C)`` bool: candidate ``k`` is collision-free and reachable in state ``s``.

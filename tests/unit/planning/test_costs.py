@@ -274,3 +274,52 @@ def test_the_simulator_planner_grasps_a_can_recognized_slightly_too_wide():
     cands = sim_planner(PusherDynamics()).grasp_checker.candidates([can])
     assert len(cands) > 0
     assert float(cands.widths.max()) <= SIM_GRASP_WIDTH
+
+
+def test_edge_grasps_come_turned_about_the_vertical_through_their_tcp():
+    from sqmanip.grasping.types import RuleOptions
+    from sqmanip.planning.costs import edge_grasp_candidates
+
+    plate = [box(0.45, 0.30, (0.13, 0.34, 0.05), yaw=0.3)]
+    rule = RuleOptions(max_width=0.075)
+    flat = edge_grasp_candidates(plate, rule)
+    turned = edge_grasp_candidates(plate, rule, turns_deg=(0.0, -20.0, 20.0))
+    assert len(turned) == 3 * len(flat) > 0
+    P = turned.poses.reshape(len(flat), 3, 4, 4)
+    torch.testing.assert_close(P[:, 0], flat.poses)
+    torch.testing.assert_close(P[:, :, :3, 3], flat.poses[:, None, :3, 3].expand(-1, 3, -1))
+    torch.testing.assert_close(turned.widths.reshape(-1, 3)[:, 1], flat.widths)
+    for k, angle in ((1, -20.0), (2, 20.0)):
+        torch.testing.assert_close(
+            P[:, k, :3, :3], rotz(math.radians(angle)) @ flat.poses[:, :3, :3]
+        )
+    # fingers still close across the vertical; the approach stays horizontal
+    assert torch.allclose(P[..., 2, 1].abs(), torch.ones((), dtype=P.dtype), atol=1e-9)
+    assert torch.allclose(P[..., 2, 2], torch.zeros((), dtype=P.dtype), atol=1e-9)
+    with pytest.raises(ValidationError, match="edge_turns_deg"):
+        GraspCostSpec(edge_turns_deg=())
+    with pytest.raises(ValidationError, match="max_edge_candidates"):
+        GraspCostSpec(max_edge_candidates=0)
+
+
+def test_turned_edge_grasps_reach_a_large_box_overhanging_a_side_edge_at_an_angle():
+    """The 34 x 13 cm box overhangs the simulator table's -y edge by 13 cm at a yaw of -15 deg.
+    Held along its own axes, every hand the Panda IK can reach has its wrist over the table;
+    turned 20 degrees, the hand reaches in from the robot's side with the wrist off it."""
+    from sqmanip.grasping.types import RuleOptions
+    from sqmanip.planning.episode import SIM_GRASP_WIDTH
+    from sqmanip.planning.scenarios import sim_reachability, sim_table
+
+    scene = PackedScene.from_objects(
+        [([box(0.46, -0.36, (0.13, 0.34, 0.05), math.radians(-15))], 0)]
+    )
+
+    def n_feasible(**kw) -> int:
+        spec = GraspCostSpec(rule=RuleOptions(max_width=SIM_GRASP_WIDTH), **kw)
+        feas = GraspFeasibility(
+            sim_reachability(), spec=spec, gripper=PANDA_HAND, table=sim_table()
+        )
+        return int(feas.feasible(scene, scene.poses[None], 0).sum())
+
+    assert n_feasible(edge_turns_deg=(0.0,)) == 0
+    assert n_feasible() > 0
