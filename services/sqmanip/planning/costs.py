@@ -26,7 +26,7 @@ from sqmanip.errors import ValidationError
 from sqmanip.geometry import Superquadric
 from sqmanip.geometry.raycast import bound_box, bound_radius
 from sqmanip.geometry.superquadric import implicit_homogeneous
-from sqmanip.geometry.transforms import rot_z, se3_inverse
+from sqmanip.geometry.transforms import se3_inverse, so3_exp
 from sqmanip.grasping.config import Reachability
 from sqmanip.grasping.gripper import gripper_boxes, gripper_points
 from sqmanip.grasping.rule_based import part_box, rule_based_candidates
@@ -472,14 +472,15 @@ def edge_grasp_candidates(
     flat object wider than the opening has no candidate there; these reach its rim where it
     overhangs the table (4.6.3 "grasping large").
 
-    Each grasp comes once per angle of ``turns_deg``, turned by it about the world z axis through
-    its TCP (fingers still on the top and bottom faces). A plate overhanging a side edge at an angle
-    is reached by the arm only from its own side with the wrist off the table; the unturned hand,
+    Each grasp comes once per angle of ``turns_deg``, turned by it about ``up`` through its TCP
+    (fingers still on the top and bottom faces). A plate overhanging a side edge at an angle is
+    reached by the arm only from its own side with the wrist off the table; the unturned hand,
     aligned with the plate's axes, then has its wrist over the table on one of the two yaws.
     """
     poses, widths, contacts = [], [], []
     e = np.eye(3)
-    turns = [rot_z(math.radians(float(a))).double().numpy() for a in turns_deg]
+    axis = torch.as_tensor(up, dtype=torch.float64) / float(np.linalg.norm(up))
+    turns = [so3_exp(axis * math.radians(float(a))).numpy() for a in turns_deg]
     for part in parts:
         c, b = part_box(part)
         R_o, t_o = part.pose[:3, :3], part.pose[:3, 3]
