@@ -123,6 +123,10 @@ class SimConfig:
     data generator uses ``teleport`` (about 3x fewer physics steps per tuple)."""
     approach_distance: float = 0.10
     """Pre-grasp offset back along the gripper z axis and lift height after closing (m)."""
+    grasp_via_distance: float = 0.30
+    """When the free-space line to a pre-grasp pose collides, the grasp may go to the tool this
+    far back along its approach axis first and move in along it (the 30 cm approach of C.3);
+    0 (or at most ``approach_distance``): the direct line only."""
     grasp_ik_seeds: int = 13
     """More IK seeds a grasp plan tries after home and the ready configuration (the IK's first
     random restart, then fixed offsets from home drawn once; 0: home only): a pose deep in a

@@ -6,7 +6,8 @@ NumPy generators for scene sampling, IK restarts and sensor noise.
 
 Actions (Ch. 4.5, 5.4.4): ``push(p, v)`` (tool to ``p`` with the Fig. 4.6 orientation, then to
 ``p + v`` through 10 via points, slowly), ``grasp(pose, width)`` (pre-grasp 10 cm back along the
-tool z axis, approach, close, lift 10 cm, hold), ``pick_and_place``. Every action first checks
+tool z axis, approach, close, lift 10 cm, hold; the move to the pre-grasp goes through the start
+of the 30 cm approach line when the direct joint line from home collides), ``pick_and_place``. Every action first checks
 its arguments (``ValidationError``: non-finite, out of workspace, too wide) and then the
 reachability (pinocchio IK) and static collisions (table, pedestal, shelf) of its key
 configurations and of the free-space joint paths (``PreconditionError`` with the reason), so a
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+from typing import NamedTuple
 
 import numpy as np
 import pybullet as p
@@ -130,8 +132,9 @@ def push_tool_poses(
     """Tool poses ``(pre, start, end, post)`` (4 x 4, world) of a push from ``p0`` along ``v``
     with the Fig. 4.6 orientation (:func:`.actions.push_tool_rotation`): on the tabletop the
     pre-push and post-push poses are above the start and the end (at 0.25 m, at least 5 cm
-    higher); in the shelf (``shelf`` given) 12 cm back along the tool z axis, outside the
-    opening."""
+    higher); in the shelf (``shelf`` given) 12 cm back along the tool z axis (level, -x), and
+    at least out to 2 cm before the opening: from a pose deep inside, the joint-space line home
+    swung the arm through a side wall (a third of the refused shelf pushes)."""
     R = push_tool_rotation(v, yaw_offset, down=shelf is None)
     T_start = tool_pose(R, p0)
     T_end = tool_pose(R, p0 + v)
@@ -139,6 +142,7 @@ def push_tool_poses(
         T_pre = offset_along_z(T_start, -0.12)
         T_pre[0, 3] = min(T_pre[0, 3], shelf.front_x - 0.02)
         T_post = offset_along_z(T_end, -0.12)
+        T_post[0, 3] = min(T_post[0, 3], shelf.front_x - 0.02)
     else:
         T_pre = lifted(T_start, max(0.25 - p0[2], 0.05))
         T_post = lifted(T_end, max(0.25 - T_end[2, 3], 0.05))
@@ -175,6 +179,17 @@ def grasp_path_samples(q0: np.ndarray, q1: np.ndarray) -> int:
     """How many configurations :func:`joint_path` checks between ``q0`` and ``q1`` (at least 8)."""
     largest = float(np.abs(np.asarray(q1) - np.asarray(q0)).max())
     return max(8, math.ceil(largest / GRASP_PATH_STEP))
+
+
+class GraspPlan(NamedTuple):
+    """Joint configurations of a grasp (:meth:`Simulator.plan_grasp`): the free-space move goes
+    to ``via`` first when there is one (the start of the approach line, see
+    :attr:`SimConfig.grasp_via_distance`), then to ``pre``; ``grasp`` closes, ``lift`` lifts."""
+
+    pre: np.ndarray
+    grasp: np.ndarray
+    lift: np.ndarray
+    via: np.ndarray | None = None
 
 
 def workspace_bounds() -> np.ndarray:
@@ -642,8 +657,8 @@ class Simulator:
 
     def plan_grasp(
         self, pose: np.ndarray, width: float, q_start: np.ndarray, *, objects: bool = True
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Joint configurations ``(pre-grasp, grasp, lift)`` for a grasp at tool ``pose`` from
+    ) -> GraspPlan:
+        """Joint configurations (:class:`GraspPlan`) for a grasp at tool ``pose`` from
         ``q_start``, without moving; :meth:`grasp` and :meth:`pick_and_place` execute them.
 
         The pre-grasp IK is seeded at ``q_start``, then at ``grasp_ik_seeds`` more: the IK's
@@ -653,6 +668,12 @@ class Simulator:
         pre-grasp and grasp configurations and joint path from ``q_start`` (sampled every
         :data:`GRASP_PATH_STEP`) are free of the static bodies (and of the objects, with
         ``objects``), and whose lift configuration is free of the static bodies, wins.
+        When the joint-space line from ``q_start`` to the pre-grasp hits something, the chain
+        may instead go through ``via``: the tool on the grasp's approach line,
+        ``grasp_via_distance`` back from the grasp, then along that line to the pre-grasp
+        (both segments checked the same way). From the shelf robot's home the direct line
+        to a deep pose swings the arm through the top board (a third of the shelf grasps
+        failed only on it); the approach line is the one the planner's C.3 afterimage checks.
         Deterministic. Raises :class:`PreconditionError` with the first seed's reason when no
         seed gives such a chain (a deep pose's first IK solution often has the elbow in a board
         where another clears it)."""
@@ -678,25 +699,56 @@ class Simulator:
                 self._check_free(q_pre, width, "pre-grasp configuration", objects=objects)
                 self._check_free(q_grasp, width, "grasp configuration", objects=objects)
                 self._check_free(q_lift, 0.0, "lift configuration")
-                self._check_path(
-                    q_start, q_pre, width, "pre-grasp pose", grasp_path_samples(q_start, q_pre),
-                    objects=objects,
-                )  # fmt: skip
-                return q_pre, q_grasp, q_lift
+                return GraspPlan(
+                    q_pre, q_grasp, q_lift, self._grasp_via(pose, q_start, q_pre, width, objects)
+                )
             except PreconditionError as exc:
                 first = first or exc
         assert first is not None
         raise first
 
-    def _execute_grasp(self, q_pre, q_grasp, q_lift, width: float) -> tuple[bool, str, int | None]:
+    def _grasp_via(
+        self, pose: np.ndarray, q_start: np.ndarray, q_pre: np.ndarray, width: float, objects: bool
+    ) -> np.ndarray | None:
+        """``None`` when the joint line ``q_start -> q_pre`` is free, else a free ``via`` on the
+        approach line (see :meth:`plan_grasp`); raises the direct line's collision otherwise."""
+
+        def free_path(q0: np.ndarray, q1: np.ndarray) -> None:
+            n = grasp_path_samples(q0, q1)
+            self._check_path(q0, q1, width, "pre-grasp pose", n, objects=objects)
+
+        try:
+            free_path(q_start, q_pre)
+            return None
+        except PreconditionError as direct:
+            d = self.config.grasp_via_distance
+            if d <= self.config.approach_distance:
+                raise
+            try:
+                T_via = offset_along_z(pose, -d)
+                q_via = self._solve(T_via, q_pre, "approach start", restarts=0)
+                if np.abs(q_via - q_pre).max() > 1.0:
+                    raise PreconditionError("approach line needs a joint flip") from None
+                self._check_free(q_via, width, "approach start configuration", objects=objects)
+                free_path(q_start, q_via)
+                free_path(q_via, q_pre)
+            except PreconditionError:
+                raise direct from None
+            return q_via
+
+    def _execute_grasp(self, plan: GraspPlan, width: float) -> tuple[bool, str, int | None]:
         r = self._require_robot()
         cfg = self.config
         starts = {i: s.position[2] for i, s in enumerate(self._object_states())}
         r.actuate_gripper(width, max_time=0.4)
-        r.move_joints(q_pre)
-        r.move_joints(q_grasp, speed=0.15)
+        if plan.via is not None:
+            r.move_joints(plan.via)
+            r.move_joints(plan.pre, speed=0.2)
+        else:
+            r.move_joints(plan.pre)
+        r.move_joints(plan.grasp, speed=0.15)
         r.actuate_gripper(0.0, max_time=0.8)
-        r.follow([q_lift], [cfg.approach_distance / 0.1])
+        r.follow([plan.lift], [cfg.approach_distance / 0.1])
         for _ in range(int(cfg.hold_time / cfg.time_step)):
             self._step()
         held = self._object_in_hand()
@@ -728,10 +780,10 @@ class Simulator:
         pose = as_pose(pose, "pose")
         width = as_width(width)
         self._check_idle()
-        q_pre, q_grasp, q_lift = self.plan_grasp(pose, width, self.home)
+        plan = self.plan_grasp(pose, width, self.home)
         before = self.get_state()
         t0 = self._time
-        ok, msg, held = self._execute_grasp(q_pre, q_grasp, q_lift, width)
+        ok, msg, held = self._execute_grasp(plan, width)
         if ok:
             self._held = held
         else:
@@ -763,19 +815,19 @@ class Simulator:
         self._in_workspace(
             place_pose[:3, 3] * [1, 1, 0] + [0, 0, self._floor_z() + 0.01], "place position"
         )
-        q_pre, q_grasp, q_lift = self.plan_grasp(grasp_pose, width, self.home)
+        plan = self.plan_grasp(grasp_pose, width, self.home)
         T_pre_place = lifted(place_pose, self.config.approach_distance)
-        q_pre_place = self._solve(T_pre_place, q_lift, "pre-place pose")
+        q_pre_place = self._solve(T_pre_place, plan.lift, "pre-place pose")
         q_place = self._solve(place_pose, q_pre_place, "place pose")
         q_retreat = self._solve(
             offset_along_z(place_pose, -self.config.approach_distance), q_place, "retreat pose"
         )
         self._check_free(q_place, 0.0, "place configuration")
         self._check_free(q_pre_place, 0.0, "pre-place configuration")
-        self._check_path(q_lift, q_pre_place, 0.0, "pre-place pose")
+        self._check_path(plan.lift, q_pre_place, 0.0, "pre-place pose")
         before = self.get_state()
         t0 = self._time
-        ok, msg, held = self._execute_grasp(q_pre, q_grasp, q_lift, width)
+        ok, msg, held = self._execute_grasp(plan, width)
         if not ok:
             r.actuate_gripper(GRIPPER_MAX_WIDTH, max_time=0.3)
             r.move_joints(self.home)

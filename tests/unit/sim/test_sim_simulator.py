@@ -22,6 +22,7 @@ from sqmanip.sim import (
     Simulator,
     workspace_bounds,
 )
+from sqmanip.sim.simulator import push_tool_poses
 
 
 @pytest.fixture(scope="module")
@@ -304,20 +305,22 @@ def test_grasp_plan_tries_more_ik_seeds_when_the_first_chain_hits_the_shelf(sim)
     finally:
         first_only.close()
     sim.reset(spec)
-    q_pre, q_grasp, q_lift = sim.plan_grasp(pose, 0.08, sim.home)
-    np.testing.assert_allclose(sim.kin.fk(q_grasp)[:3, 3], pose[:3, 3], atol=2e-3)
-    assert np.array_equal(sim.plan_grasp(pose, 0.08, sim.home)[1], q_grasp)
+    plan = sim.plan_grasp(pose, 0.08, sim.home)
+    np.testing.assert_allclose(sim.kin.fk(plan.grasp)[:3, 3], pose[:3, 3], atol=2e-3)
+    assert np.array_equal(sim.plan_grasp(pose, 0.08, sim.home).grasp, plan.grasp)
     r = sim.grasp(pose, 0.08)
     assert r.success, r.message
     sim.release()
 
 
-def test_grasp_whose_path_from_home_crosses_an_object_is_refused(sim):
+def test_grasp_whose_path_from_home_crosses_an_object_goes_along_its_approach_line(sim):
     """An edge grasp of a 34 x 13 x 5 cm box overhanging the table's side, approached
     horizontally at 2.6 cm height: the chain from home turns the wrist by 2 rad on its way
     down and sweeps the hand through the box (no other seed gives a free chain). Checked at 8
     points, the path looked free and the move knocked the box off the table; checked every
-    ``GRASP_PATH_STEP`` rad, it is refused and the box stays where it was."""
+    ``GRASP_PATH_STEP`` rad, the direct line is refused (``grasp_via_distance = 0``) and the
+    box stays where it was. By default the plan goes to the start of the 30 cm approach line
+    first (beside the table, clear of the box) and the grasp lifts the box."""
     yaw, phi = np.radians(13.4), np.arctan2(0.22, 0.98)
     box = ObjectSpec(
         "box",
@@ -325,14 +328,48 @@ def test_grasp_whose_path_from_home_crosses_an_object_is_refused(sim):
         orientation=(0.0, 0.0, np.sin(yaw / 2), np.cos(yaw / 2)),
         size=(0.13, 0.34, 0.05),
     )
-    sim.reset(SceneSpec(kind="tabletop", objects=(box,), seed=0))
+    spec = SceneSpec(kind="tabletop", objects=(box,), seed=0)
     z, y = np.array([np.cos(phi), np.sin(phi), 0.0]), np.array([0.0, 0.0, 1.0])
     pose = np.eye(4)
     pose[:3, :3] = np.stack([np.cross(y, z), y, z], -1)
     pose[:3, 3] = (0.494, -0.433, 0.026)
-    with pytest.raises(PreconditionError):
-        sim.grasp(pose, 0.072)
-    np.testing.assert_allclose(sim.get_state().objects[0].position, box.position, atol=1e-3)
+    direct_only = Simulator(SimConfig(grasp_via_distance=0.0))
+    try:
+        direct_only.reset(spec)
+        with pytest.raises(PreconditionError):
+            direct_only.grasp(pose, 0.072)
+        np.testing.assert_allclose(
+            direct_only.get_state().objects[0].position, box.position, atol=1e-3
+        )
+    finally:
+        direct_only.close()
+    sim.reset(spec)
+    plan = sim.plan_grasp(pose, 0.072, sim.home)
+    assert plan.via is not None
+    np.testing.assert_allclose(sim.kin.fk(plan.via)[:3, 3], pose[:3, 3] - 0.3 * z, atol=2e-3)
+    r = sim.grasp(pose, 0.072)
+    assert r.success, r.message
+    assert sim.get_state().objects[0].position[2] > box.position[2] + 0.05
+    sim.release()
+
+
+def test_deep_shelf_push_retreats_straight_out_of_the_opening(sim):
+    """A push 32 cm deep in the shelf towards its left wall (a step of a traced search episode):
+    its post-push pose backs out along -x to 2 cm before the opening, so the way home starts
+    outside the shelf. With the post-push pose 12 cm back, still inside, the joint line home
+    swung the arm through the left wall and the push was refused."""
+    s = sim.config.shelf
+    p0 = np.array([s.front_x + 0.324, 0.077, s.bottom_z + 0.069])
+    v = np.array([0.0, 0.1, 0.0])
+    _, _, end, post = push_tool_poses(p0, v, 0.0, s)
+    assert post[0, 3] == pytest.approx(s.front_x - 0.02)
+    np.testing.assert_allclose(post[1:, 3], end[1:, 3])
+    np.testing.assert_allclose(post[:3, :3], end[:3, :3])
+    box = ObjectSpec("box", position=(0.824, 0.17, s.bottom_z + 0.05), size=(0.05, 0.05, 0.1))
+    sim.reset(SceneSpec(kind="shelf", objects=(box,), seed=0))
+    r = sim.push(p0, v)
+    assert r.success, r.message
+    assert r.after.objects[0].position[1] > box.position[1] + 0.03
 
 
 def test_grasp_through_the_shelf_top_is_refused(sim):
