@@ -129,9 +129,11 @@ class SearchPlanner:
         surrounding object uses only a grasp it accepts (with the objects). Once the target is
         visible at ``x*``, ``g(x*)`` counts only the C.3 candidates the robot can execute. The
         afterimage of the gripper and links 6-7 (C.3) misses the rest of the arm and the IK:
-        the check with ``objects=True`` filters the candidates for the current scene (and so
-        decides whether to grasp now), the one with ``objects=False`` those of the predicted
-        scenes (the arm-shelf part does not move).
+        the check with ``objects=True`` filters the candidates for the current scene and, when
+        it passes one, decides to grasp now even where the afterimage of the recognized shapes
+        (inflated, and only an estimate behind what was seen) is blocked; the one with
+        ``objects=False`` filters those of the predicted scenes (the arm-shelf part does not
+        move).
         When no candidate passes even without objects, no rearrangement can make the target
         graspable and the decision is ``none``."""
         if target_visible and target_pose is None:
@@ -173,9 +175,14 @@ class SearchPlanner:
 
         if target_visible:
             i = grid.nearest(target_pose)
-            if root.g[i] >= 1 and root.best_grasp[i] >= 0:
+            k = int(root.best_grasp[i]) if root.g[i] >= 1 else -1
+            if k < 0 and allowed_now is not None and bool(allowed_now[1].any()):
+                # the robot's own plan, against the objects as they stand, passes a grasp the
+                # afterimage of the recognized (and inflated) shapes rules out: trust the robot
+                k = int(allowed_now[1].nonzero()[0])
+            if k >= 0:
                 T, _ = ev.gm.grasp_poses(torch.tensor([i]))
-                pose = T[0, int(root.best_grasp[i])].double().numpy()
+                pose = T[0, k].double().numpy()
                 params: dict[str, Any] = {"grasp_pose": pose, "grid_index": i}
                 if allowed_now is not None:
                     params["executable"] = allowed_now[1].nonzero().squeeze(-1).tolist()

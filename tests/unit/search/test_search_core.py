@@ -126,6 +126,33 @@ def test_g_drops_when_boxes_block_every_approach(models):
     assert g0.shape == (len(grid),) and gm1.dtype == gm0.dtype
 
 
+def test_visible_target_is_grasped_when_the_robot_check_passes_what_the_afterimage_blocks():
+    """The afterimage of the recognized shapes (inflated) rules out every grasp of a target
+    behind a wall; the robot's own check (``grasp_check``, with the objects as they stand)
+    decides: it passes a grasp -> grasp now; it passes none -> rearrange first."""
+    torch.set_num_threads(1)
+    cfg = SearchConfig(resolution=0.04, n_sequences=4, horizon=1)
+    planner = SearchPlanner(KinematicPushDynamics(), None, cfg)
+    wall = [box(0.66, y, 0.06, 0.08, 0.3) for y in (-0.24, -0.16, -0.08, 0.0, 0.08, 0.16, 0.24)]
+    pose = np.eye(4)
+    pose[:3, 3] = (0.78, 0.0, SHELF.bottom_z + TARGET.size[2])
+    asked = []
+
+    def robot(passes_with_objects):
+        def check(poses, objects):
+            asked.append(objects)
+            return np.full(len(poses), passes_with_objects or not objects)
+
+        return check
+
+    kw = dict(target_pose=pose, rng=0)
+    d = planner.decide(wall, TARGET, SHELF, SHELF.camera(), True, **kw, grasp_check=robot(True))
+    assert d.kind == "grasp" and d.fg_map.max() == 0  # g (afterimage) says no, the robot yes
+    assert d.params["executable"] and True in asked
+    d = planner.decide(wall, TARGET, SHELF, SHELF.camera(), True, **kw, grasp_check=robot(False))
+    assert d.kind != "grasp"
+
+
 def test_sequence_cost_is_discounted_sum_of_differences():
     assert sequence_cost([10.0, 8.0, 8.0, 5.0], 0.5) == pytest.approx(-2.0 + 0.0 + 0.25 * -3.0)
 
