@@ -18,9 +18,12 @@ or from the side; links 5-6 hit a neighbour at the pre-grasp pose). With an in-p
 simulator the runner therefore hands the planner a :class:`SimGraspCheck` -- the simulator's own
 grasp plan (``Simulator.plan_grasp``: IK over its fixed seeds and the collision queries),
 without moving the robot -- and ``g(x*)`` counts only the grasps that pass; the
-executed grasp is one of them. A pick-and-place of a surrounding object likewise uses a grasp
-that passes (with the objects). The planner's grasp poses put the TCP
-``GripperSpec.flange_offset`` in front of the flange, the simulator's 1.8 mm further
+executed grasp is one of them. The check also names the objects a refused grasp hits (each
+recognized shape carries the simulator id most of its points have), and the planner's
+predicted scenes count those as obstacles of that grasp until they move. A pick-and-place
+of a surrounding object likewise uses a grasp that passes (with the objects). The planner's
+grasp poses put the TCP ``GripperSpec.flange_offset`` in front of the flange, the simulator's
+1.8 mm further
 (:func:`sqmanip.grasping.reachability.sim_tool_pose` converts). A remote simulator (the
 service) has no such query: there the planner's ``g`` decides and the simulator may refuse.
 
@@ -92,10 +95,9 @@ class EpisodeResult:
     events: list[StepEvent]
 
 
-def _oracle_objects(obs: Observation, target_index: int) -> list[Superquadric]:
-    return [
-        o.superquadric for o in obs.objects if o.id != target_index and o.superquadric is not None
-    ]
+def _oracle_objects(obs: Observation, target_index: int) -> tuple[list[Superquadric], list[int]]:
+    keep = [o for o in obs.objects if o.id != target_index and o.superquadric is not None]
+    return [o.superquadric for o in keep], [o.id for o in keep]
 
 
 class EpisodeRunner:
@@ -132,9 +134,13 @@ class EpisodeRunner:
 
     # --- perception ---------------------------------------------------------------------------
 
-    def recognize(self, obs: Observation, target_index: int) -> list[Superquadric]:
+    def recognize(
+        self, obs: Observation, target_index: int
+    ) -> tuple[list[Superquadric], list[int]]:
         """Surrounding objects: ground truth (O-) or recognized from the cloud without the
-        target's points (R-; instance labels from the simulator's segmentation)."""
+        target's points (R-; instance labels from the simulator's segmentation), and for each
+        the simulator's id of the object it stands for (the most common label of its points):
+        the robot's grasp check names what blocks a grasp by that id."""
         if self.shapes == "oracle":
             return _oracle_objects(obs, target_index)
         from sqmanip.perception.types import RecognizeOptions, RecognizeRequest, Workspace
@@ -156,7 +162,15 @@ class EpisodeRunner:
             options=RecognizeOptions(deformable=False, seed=0),
         )
         scene = self.recognizer.recognize(req)
-        return [_to_floor(p, s.bottom_z) for o in scene.objects for p in o.parts]
+        parts, ids = [], []
+        for o in scene.objects:
+            own = lab[np.asarray(o.point_indices, np.int64)]
+            own = own[own >= 0]
+            sim_id = int(np.bincount(own).argmax()) if own.size else -1
+            for p in o.parts:
+                parts.append(_to_floor(p, s.bottom_z))
+                ids.append(sim_id)
+        return parts, ids
 
     # --- episode ------------------------------------------------------------------------------
 
@@ -203,9 +217,11 @@ class EpisodeRunner:
                 return self._end(found_step, None, steps, "target knocked over or off the shelf")
             t = time.perf_counter()
             try:
-                objects = self.recognize(obs, ti)
+                objects, ids = self.recognize(obs, ti)
             except SQManipError:  # nothing recognizable: plan with an empty scene
-                objects = []
+                objects, ids = [], []
+            if self.grasp_check is not None:
+                self.grasp_check.object_index = {sid: k for k, sid in enumerate(ids) if sid >= 0}
             times["recognize"] = (time.perf_counter() - t) * 1e3
             d = planner.decide(
                 objects,

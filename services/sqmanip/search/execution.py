@@ -26,19 +26,38 @@ class SimGraspCheck:
     def __init__(self, sim: Simulator, width: float = GRIPPER_MAX_WIDTH) -> None:
         self.sim, self.width = sim, float(width)
         self._arm: dict[bytes, bool] = {}
+        self.object_index: dict[int, int] = {}
+        """Simulator object id -> index in the planner's object list (set by the runner for
+        each observation); ids not in it are objects the planner does not know (-1)."""
+        self.last_blockers: list[frozenset[int]] = []
+        """Per pose of the last ``objects=True`` call: the planner's indices of the objects the
+        refused plan hit (empty when it passed or hit only the shelf)."""
 
     def _one(self, pose: np.ndarray, objects: bool) -> bool:
         try:
             self.sim.plan_grasp(pose, self.width, self.sim.home, objects=objects)
-        except PreconditionError:
+        except PreconditionError as exc:
+            if objects:
+                self.last_blockers.append(self._blockers(exc))
             return False
+        if objects:
+            self.last_blockers.append(frozenset())
         return True
+
+    def _blockers(self, exc: PreconditionError) -> frozenset[int]:
+        out = set()
+        for name in getattr(exc, "bodies", ()):
+            if name.startswith("object "):
+                out.add(self.object_index.get(int(name.split()[1]), -1))
+        return frozenset(out)
 
     def __call__(self, poses: np.ndarray, objects: bool) -> np.ndarray:
         from sqmanip.grasping.reachability import sim_tool_pose
 
         T = sim_tool_pose(np.asarray(poses, np.float64).reshape(-1, 4, 4))
         out = np.zeros(len(T), dtype=bool)
+        if objects:
+            self.last_blockers = []
         for k, pose in enumerate(T):
             if objects:
                 out[k] = self._one(pose, True)

@@ -10,6 +10,7 @@ The episode loop (observe, act, at most ``T = 10`` times) belongs to the runner.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from collections.abc import Callable, Sequence
 from typing import Any, Literal, Protocol
@@ -56,7 +57,10 @@ class GraspCheck(Protocol):
     ``(K,)`` bool. ``objects=False`` asks about the arm, the shelf and the robot's own IK only
     (what no rearrangement can change); ``objects=True`` also about the objects now on the
     shelf. :class:`sqmanip.search.episode.SimGraspCheck` answers with the simulator's own IK
-    and collision checks."""
+    and collision checks. Optional attribute ``last_blockers``: per pose of the last
+    ``objects=True`` call, the planner's indices of the objects a refused grasp hit (-1: one
+    the planner does not know); :meth:`SearchPlanner.decide` then counts them as obstacles of
+    that grasp in a predicted scene until they move."""
 
     def __call__(self, poses: np.ndarray, objects: bool) -> np.ndarray: ...
 
@@ -133,7 +137,8 @@ class SearchPlanner:
         it passes one, decides to grasp now even where the afterimage of the recognized shapes
         (inflated, and only an estimate behind what was seen) is blocked; the one with
         ``objects=False`` filters those of the predicted scenes (the arm-shelf part does not
-        move).
+        move), where the objects a refused grasp hit (the check's ``last_blockers``) count as
+        obstacles of it until they moved 2 cm (:func:`_unblocked`).
         When no candidate passes even without objects, no rearrangement can make the target
         graspable and the decision is ``none``."""
         if target_visible and target_pose is None:
@@ -147,6 +152,7 @@ class SearchPlanner:
         scene = SceneState.from_objects(objects)
         prior_t = None if prior is None else torch.as_tensor(np.asarray(prior)).bool()
         allowed_now = allowed_later = None
+        blockers: dict[int, frozenset[int]] = {}
         if target_visible and grasp_check is not None:
             t = time.perf_counter()
             i = grid.nearest(target_pose)
@@ -157,6 +163,9 @@ class SearchPlanner:
             ok_now = ok_arm.copy()
             if ok_arm.any():
                 ok_now[ok_arm] = np.asarray(grasp_check(poses[ok_arm], True), dtype=bool)
+                named = getattr(grasp_check, "last_blockers", None)
+                if named is not None and len(named) == int(ok_arm.sum()):
+                    blockers = dict(zip(np.flatnonzero(ok_arm).tolist(), named, strict=True))
             allowed_now = (i, torch.from_numpy(ok_now))
             allowed_later = (i, torch.from_numpy(ok_arm))
             times["grasp_check"] = (time.perf_counter() - t) * 1e3
@@ -240,8 +249,11 @@ class SearchPlanner:
             times["total"] = (time.perf_counter() - t0) * 1e3
             return Decision("none", {}, f_map, fg_map, root.J, times, reason="no valid action")
         t = time.perf_counter()
+        later = allowed_later
+        if allowed_later is not None and blockers:
+            later = functools.partial(_unblocked, allowed_later, blockers, scene)
         costs = self._rollouts(
-            scene, root, first, ev, sampler, shelf, target_visible, target_pose, rng, allowed_later
+            scene, root, first, ev, sampler, shelf, target_visible, target_pose, rng, later
         )
         times["rollout"] = (time.perf_counter() - t) * 1e3
         costs = costs + cfg.risk_weight * risk * max(root.J, 1.0)
@@ -287,8 +299,9 @@ class SearchPlanner:
             f_prev = root.f
             state = s1
             for step in range(cfg.horizon):
+                ok = allowed(state) if callable(allowed) else allowed
                 m = ev.maps(
-                    state, visible=visible, target_pose=target_pose, prior=f_prev, allowed=allowed
+                    state, visible=visible, target_pose=target_pose, prior=f_prev, allowed=ok
                 )
                 J.append(m.J)
                 f_prev = m.f
@@ -367,6 +380,30 @@ class SearchPlanner:
                         if self.feasible(a, self._shelf):
                             return a
         return None
+
+
+MOVED = 0.02
+"""An object counts as moved out of a grasp's way in a predicted scene when its centre moved at
+least this far (m) (ours)."""
+
+
+def _unblocked(
+    allowed: tuple[int, torch.Tensor],
+    blockers: dict[int, frozenset[int]],
+    scene: SceneState,
+    state: SceneState,
+) -> tuple[int, torch.Tensor, torch.Tensor]:
+    """``allowed`` with, per candidate, the number of objects the robot's plan was refused on
+    now that have not moved ``MOVED`` in the predicted ``state`` (an object the planner does
+    not know, -1, never moves): obstacles for ``g_c,m`` beside those the afterimage of the
+    gripper and links 6-7 hits. Without them the afterimage alone expects a grasp to open when
+    one of its several blockers (often hit by links 4-5 at the pre-grasp) moves."""
+    i, ok = allowed
+    extra = torch.zeros(len(ok), dtype=torch.long)
+    moved = (state.poses[:, :2, 3] - scene.poses[:, :2, 3]).norm(dim=-1) >= MOVED
+    for k, objs in blockers.items():
+        extra[k] = sum(1 for b in objs if b < 0 or b >= len(moved) or not bool(moved[b]))
+    return i, ok, extra
 
 
 def _action_params(a: Action) -> dict[str, Any]:

@@ -92,11 +92,12 @@ class FGEvaluator:
         self,
         scene: SceneState,
         mask: torch.Tensor,
-        allowed: tuple[int, torch.Tensor] | None = None,
+        allowed: tuple[torch.Tensor | int, ...] | None = None,
     ):
         """``(g, g_m, best)`` on ``mask`` as :meth:`GraspabilityModel.evaluate`; ``allowed =
         (i, ok (K,))`` keeps only the candidates ``ok`` at grid pose ``i`` (those the robot can
-        execute there, :meth:`SearchPlanner.decide`'s ``grasp_check``)."""
+        execute there, :meth:`SearchPlanner.decide`'s ``grasp_check``); ``(i, ok, extra (K,))``
+        also adds ``extra`` obstacles to each candidate's count there."""
         gm = self.grasp
         P, K = self.P, gm.n_candidates
         n_obs = len(scene) + 5
@@ -118,6 +119,9 @@ class FGEvaluator:
             if row.numel():
                 valid = valid.clone()
                 valid[row] &= allowed[1].to(valid.device)
+                if len(allowed) > 2:  # obstacles the robot's own plan found that g does not see
+                    n = n.clone()
+                    n[row] += allowed[2].to(n.device)
         n = torch.where(valid, n, torch.full_like(n, n_obs))
         n_min, k = n.min(-1)
         g_m[idx] = (1 - n_min).to(gm.dtype)
@@ -168,7 +172,7 @@ class FGEvaluator:
         visible: bool = False,
         target_pose=None,
         prior: torch.Tensor | None = None,
-        allowed: tuple[int, torch.Tensor] | None = None,
+        allowed: tuple[torch.Tensor | int, ...] | None = None,
     ) -> Maps:
         """``f_{t+1} = prior * f(s)`` (5.4.5) and ``g(s)`` where ``f_{t+1} = 1``, with ``J``
         (``allowed``: see :meth:`graspability`)."""

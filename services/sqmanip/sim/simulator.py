@@ -561,7 +561,9 @@ class Simulator:
             extra = ""
             if any(h.startswith("object") for h in hits) and what.startswith("grasp"):
                 extra = f" (object wider than the {width:.3f} m opening, or in the fingers' way)"
-            raise PreconditionError(f"{what} collides with {kind} ({names}){extra}")
+            err = PreconditionError(f"{what} collides with {kind} ({names}){extra}")
+            err.bodies = tuple(sorted(set(hits)))  # what was hit, for callers that re-plan
+            raise err
 
     def _check_path(
         self,

@@ -99,6 +99,16 @@ def test_episode_without_solution_ends_with_a_reason(sim):
     assert result.steps == 0 and len(result.events) == 1
 
 
+def _target_grasps_in(sim, scenario):
+    """The C.3 candidates of the scenario's target (world poses) and their validity."""
+    sim.reset(scenario.scene)
+    planner = SearchPlanner(KinematicPushDynamics(), None, SearchConfig())
+    runner = EpisodeRunner(sim, planner)
+    _, ev, _ = planner.models(runner.shelf, scenario.target, runner.camera)
+    pose = sim.get_state().objects[scenario.target_index].pose
+    return planner.target_grasps(ev, ev.em.grid.nearest(pose), pose)
+
+
 def test_grasp_check_agrees_with_the_simulator(sim):
     """SimGraspCheck asks the simulator's own IK and collision queries without moving: every
     candidate it rejects with the shelf alone is refused by ``Simulator.grasp`` as well, and
@@ -108,12 +118,7 @@ def test_grasp_check_agrees_with_the_simulator(sim):
     from sqmanip.search.execution import SimGraspCheck
 
     scenario = scenario_from_objects([], (0.74, -0.2))
-    sim.reset(scenario.scene)
-    planner = SearchPlanner(KinematicPushDynamics(), None, SearchConfig())
-    runner = EpisodeRunner(sim, planner)
-    _, ev, _ = planner.models(runner.shelf, scenario.target, runner.camera)
-    pose = sim.get_state().objects[scenario.target_index].pose
-    poses, valid = planner.target_grasps(ev, ev.em.grid.nearest(pose), pose)
+    poses, valid = _target_grasps_in(sim, scenario)
     poses = poses[valid]
     check = SimGraspCheck(sim)
     arm = check(poses, False)
@@ -126,3 +131,22 @@ def test_grasp_check_agrees_with_the_simulator(sim):
     r = sim.grasp(sim_tool_pose(poses[np.flatnonzero(now)[0]]), 0.08)
     assert r.success and sim.get_state().held_object == scenario.target_index
     sim.release()
+
+
+def test_grasp_check_names_the_objects_that_block_a_grasp(sim):
+    """A box beside the target blocks some of the grasps the arm could make on an empty shelf:
+    the check reports it (by the planner's index of it) for each of those, and nothing for the
+    grasps it passes."""
+    from sqmanip.search.execution import SimGraspCheck
+
+    box = ObjectSpec("box", position=(0.74, -0.13, 0.27), size=(0.05, 0.05, 0.14), name="b")
+    scenario = scenario_from_objects([box], (0.74, -0.2))
+    poses, valid = _target_grasps_in(sim, scenario)
+    check = SimGraspCheck(sim)
+    poses = poses[valid][check(poses[valid], False)]
+    check.object_index = {0: 7}  # simulator object 0 is the planner's object 7
+    now = check(poses, True)
+    assert len(check.last_blockers) == len(poses)
+    assert (~now).any()
+    for ok, named in zip(now, check.last_blockers, strict=True):
+        assert named == (frozenset() if ok else frozenset({7}))

@@ -287,3 +287,22 @@ def test_pick_grasps_keep_the_fingers_out_of_where_the_target_may_stand():
     assert sampler.grasps(scene, 0, beside).shape[0] < n_all / 2
     far = torch.tensor([[0.70, 0.30, 0.035]])
     assert sampler.grasps(scene, 0, far).shape[0] == n_all
+
+
+def test_predicted_grasps_count_the_blockers_the_robot_named_until_they_move():
+    """A candidate the robot refused on objects 0 and 1 counts both as obstacles in a predicted
+    scene until each moved 2 cm; an object the planner does not know (-1) never moves."""
+    from sqmanip.search.mpc import _unblocked
+
+    scene = SceneState.from_objects(
+        [box(0.6, 0.0, 0.05, 0.05, 0.1), box(0.7, 0.1, 0.05, 0.05, 0.1)]
+    )
+    moved = SceneState.from_objects(
+        [box(0.6, 0.0, 0.05, 0.05, 0.1), box(0.7, 0.15, 0.05, 0.05, 0.1)]
+    )
+    ok = torch.tensor([True, True, True, False])
+    blockers = {0: frozenset({0, 1}), 1: frozenset({-1}), 2: frozenset()}
+    i, ok0, extra = _unblocked((5, ok), blockers, scene, scene)
+    assert i == 5 and torch.equal(ok0, ok) and extra.tolist() == [2, 1, 0, 0]
+    _, _, extra = _unblocked((5, ok), blockers, scene, moved)
+    assert extra.tolist() == [1, 1, 0, 0]
