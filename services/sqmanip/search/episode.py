@@ -23,9 +23,9 @@ recognized shape carries the simulator id most of its points have), and the plan
 predicted scenes count those as obstacles of that grasp until they move. A pick-and-place
 of a surrounding object likewise uses a grasp that passes (with the objects). The planner's
 grasp poses put the TCP ``GripperSpec.flange_offset`` in front of the flange, the simulator's
-1.8 mm further
-(:func:`sqmanip.grasping.reachability.sim_tool_pose` converts). A remote simulator (the
-service) has no such query: there the planner's ``g`` decides and the simulator may refuse.
+1.8 mm further (:func:`sqmanip.grasping.reachability.sim_tool_pose` converts). A remote
+simulator (the service) has no such query: there the planner's ``g`` decides and the simulator
+may refuse.
 
 Choices (ours): the target's pose, once visible, is the simulator's ground truth (the thesis
 estimates it from the segmented points; a red upright cylinder of known size); ``f`` is

@@ -56,7 +56,7 @@ class GraspCheck(Protocol):
     """Whether the robot can execute grasps of the target: ``(K, 4, 4)`` world grasp poses ->
     ``(K,)`` bool. ``objects=False`` asks about the arm, the shelf and the robot's own IK only
     (what no rearrangement can change); ``objects=True`` also about the objects now on the
-    shelf. :class:`sqmanip.search.episode.SimGraspCheck` answers with the simulator's own IK
+    shelf. :class:`sqmanip.search.execution.SimGraspCheck` answers with the simulator's own IK
     and collision checks. Optional attribute ``last_blockers``: per pose of the last
     ``objects=True`` call, the planner's indices of the objects a refused grasp hit (-1: one
     the planner does not know); :meth:`SearchPlanner.decide` then counts them as obstacles of
