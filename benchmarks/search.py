@@ -181,7 +181,7 @@ def run_episode(task: dict) -> dict:
     """One episode (runs in a worker process or a Ray task)."""
     import torch
     from sqmanip.search import SearchConfig, SearchPlanner
-    from sqmanip.search.episode import EpisodeRunner
+    from sqmanip.search.episode import NOTHING_MOVED, EpisodeRunner
     from sqmanip.search.scenarios import ShelfScenario
     from sqmanip.sim import Simulator
 
@@ -192,15 +192,16 @@ def run_episode(task: dict) -> dict:
     sim = _STATE["sim"]
     shapes, method = METHODS[task["method"]]
     dyn_name = task.get("dynamics", "kinematic")
-    risk_weight = float(task.get("risk_weight", 0.0))
-    planner = _STATE["planners"].get((method, dyn_name, risk_weight))
+    overrides = dict(task.get("config", {}))
+    key = (method, dyn_name, tuple(sorted(overrides.items())))
+    planner = _STATE["planners"].get(key)
     if planner is None:
         from sqmanip.search.scenarios import shelf_spec
 
         dynamics = _push_dynamics(dyn_name, shelf_spec(sim).bottom_z)
-        cfg = SearchConfig(method=method, risk_weight=risk_weight)
+        cfg = SearchConfig(method=method, **overrides)
         planner = SearchPlanner(dynamics, None, cfg)
-        _STATE["planners"][(method, dyn_name, risk_weight)] = planner
+        _STATE["planners"][key] = planner
     runner = EpisodeRunner(sim, planner, shapes=shapes, keep_images=bool(task.get("png")))
     scenario = ShelfScenario.from_dict(task["scenario"])
     t = time.perf_counter()
@@ -225,6 +226,7 @@ def run_episode(task: dict) -> dict:
         "plan_ms_mean": float(np.mean(plan)) if plan else 0.0,
         "plan_ms_max": float(np.max(plan)) if plan else 0.0,
         "refused": sum(e.message.startswith("refused") for e in res.events),
+        "idle": sum(e.message.endswith(f"({NOTHING_MOVED})") for e in res.events),
         "grasp_check_ms": float(
             np.mean(
                 [
@@ -279,6 +281,36 @@ def time_f_g(repeat: int = 5) -> dict:
     return {"f_ms": f_med, "f_min_ms": f_min, "g_ms": g_med, "g_min_ms": g_min}
 
 
+def config_overrides(items: list[str]) -> dict[str, Any]:
+    """``["alpha=2", ...]`` -> SearchConfig keyword arguments, each value of its field's type
+    (checked by building the config once, so a bad name or value fails before any episode)."""
+    import dataclasses
+
+    from sqmanip.errors import ValidationError
+    from sqmanip.search import SearchConfig
+
+    fields = {f.name: f for f in dataclasses.fields(SearchConfig)}
+    out: dict[str, Any] = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or name not in fields or name == "method":
+            raise ValueError(f"--set {item!r}: expected NAME=VALUE with NAME a SearchConfig field")
+        default = getattr(SearchConfig(), name)
+        if isinstance(default, bool):
+            out[name] = value.lower() in ("1", "true", "yes")
+        elif isinstance(default, (int, float, str)):
+            out[name] = type(default)(value)
+        elif isinstance(default, tuple):
+            out[name] = tuple(float(v) for v in value.split(","))
+        else:
+            raise ValueError(f"--set {item!r}: {name} cannot be set from the command line")
+    try:
+        SearchConfig(**out)
+    except (ValidationError, TypeError) as exc:
+        raise ValueError(f"--set: {exc}") from None
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--episodes", type=int, default=6, help="episodes per cell")
@@ -291,11 +323,12 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="2 episodes, 2 and 4 objects")
     ap.add_argument("--out", default=OUT, help=f"results file (default {OUT})")
     ap.add_argument(
-        "--risk-weight",
-        type=float,
-        default=0.0,
-        help="price of a fallback push's risk of shoving the target (SearchConfig.risk_weight; "
-        "default 0)",
+        "--set",
+        metavar="NAME=VALUE",
+        action="append",
+        default=[],
+        help="override a SearchConfig field for every episode (repeatable), e.g. --set alpha=2 "
+        "--set risk_weight=0.5",
     )
     ap.add_argument(
         "--dynamics",
@@ -311,6 +344,10 @@ def main(argv=None) -> int:
     )
     ap.add_argument("--save-scenarios", default=None, help="write the scenarios used (JSON)")
     args = ap.parse_args(argv)
+    try:
+        overrides = config_overrides(args.set)
+    except ValueError as exc:
+        ap.error(str(exc))
     if args.quick:
         args.episodes, args.objects = 2, [2, 4]
     import torch
@@ -351,7 +388,7 @@ def main(argv=None) -> int:
                     png = os.path.join(PNG_DIR, f"{m}_{n}obj_seed{sc['seed']}.png")
                 tasks.append(dict(method=m, n_objects=n, scenario=sc, seed=args.seed + k, png=png,
                                   dynamics=args.dynamics,
-                                  risk_weight=args.risk_weight))  # fmt: skip
+                                  config=overrides))  # fmt: skip
     t1 = time.perf_counter()
     if args.ray_address:
         import ray
@@ -415,7 +452,8 @@ def main(argv=None) -> int:
         reasons[key] = reasons.get(key, 0) + 1
     print(f"episode endings: {reasons}")
     print(
-        f"actions the simulator refused: {sum(r['refused'] for r in results)} in "
+        f"actions the simulator refused: {sum(r['refused'] for r in results)}, executed but "
+        f"moved nothing: {sum(r.get('idle', 0) for r in results)}, in "
         f"{len(results)} episodes; grasp executability check (SimGraspCheck) "
         f"{np.mean([r['grasp_check_ms'] for r in results if r['grasp_check_ms'] > 0] or [0]):.0f}"
         " ms per visible step"

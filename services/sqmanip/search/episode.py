@@ -57,6 +57,9 @@ from .scenarios import FOUND_PIXELS, SHELF_CAMERA, ShelfScenario, shelf_camera, 
 
 Shapes = Literal["oracle", "recognized"]
 
+NOTHING_MOVED = "no object moved 5 mm"
+"""Appended to the message of an executed action that changed nothing."""
+
 
 @dataclasses.dataclass
 class StepEvent:
@@ -277,6 +280,8 @@ class EpisodeRunner:
                 replans += 1
                 yield StepEvent(**base, executed=False, message=msg, timings_ms=times)
                 continue
+            if not moved:
+                msg += f" ({NOTHING_MOVED})"
             yield StepEvent(**base, executed=ok, message=msg, timings_ms=times)
             steps += 1
             replans = 0

@@ -115,6 +115,11 @@ class SimConfig:
     push_speed: float = 0.10
     """Tool speed along a push (m/s): slow, for quasi-static object motion (Ch. 4.5)."""
     push_via_points: int = 10
+    push_approach_step: float = 0.02
+    """Spacing (m) of the IK'd tool poses on the straight lines from the pre-push pose to the
+    start and from the end to the post-push pose."""
+    push_transit_speed: float = 0.20
+    """Tool speed (m/s) on those two lines."""
     push_transit: Literal["move", "teleport"] = "move"
     """How a push gets from home to the pre-push pose above its start and back: ``move`` drives
     the arm (about 7 of a push's 9 s of simulated time); ``teleport`` sets the joints (the path

@@ -565,6 +565,24 @@ class Simulator:
             err.bodies = tuple(sorted(set(hits)))  # what was hit, for callers that re-plan
             raise err
 
+    def _tool_line(
+        self, T0: np.ndarray, T1: np.ndarray, q0: np.ndarray, what: str, n: int | None = None
+    ) -> list[np.ndarray]:
+        """Configurations along the straight tool line from ``T0`` (at ``q0``) to ``T1`` (same
+        orientation): ``n`` evenly spaced poses, by default one per ``push_approach_step``,
+        each IK seeded at the previous one; the last is at ``T1``. A joint-space line between
+        the ends instead can sweep the hand far off the line: from the pre-push pose at the
+        shelf opening to a start 20 cm deep it dipped under the floor board and stalled there,
+        and the push then moved nothing."""
+        d = T1[:3, 3] - T0[:3, 3]
+        if n is None:
+            n = max(1, math.ceil(float(np.linalg.norm(d)) / self.config.push_approach_step))
+        out, q = [], q0
+        for k in range(1, n + 1):
+            q = self._solve(tool_pose(T1[:3, :3], T0[:3, 3] + d * k / n), q, what)
+            out.append(q)
+        return out
+
     def _check_path(
         self,
         q0: np.ndarray,
@@ -594,8 +612,10 @@ class Simulator:
     # --- actions ---------------------------------------------------------------------------------
 
     def push(self, p_start, v) -> ActionResult:
-        """Push (Ch. 4.5): tool tip to ``p`` with the Fig. 4.6 orientation, then to ``p + v``
-        through ``push_via_points`` via points at ``push_speed``; lift and return home."""
+        """Push (Ch. 4.5): from home to the pre-push pose (:func:`push_tool_poses`), the tool
+        tip along a straight line to ``p`` with the Fig. 4.6 orientation, then to ``p + v``
+        through ``push_via_points`` via points at ``push_speed``, straight back to the
+        post-push pose and home (:meth:`_tool_line`)."""
         r = self._require_robot()
         cfg = self.config
         p0 = as_point(p_start, "p")
@@ -609,34 +629,35 @@ class Simulator:
         plan = None
         errors = []
         for yaw in (0.0, np.pi):
-            T_pre, T_start, _, T_post = push_tool_poses(p0, v, yaw, cfg.shelf if shelf else None)
-            R = T_start[:3, :3]
+            T_pre, T_start, T_end, T_post = push_tool_poses(
+                p0, v, yaw, cfg.shelf if shelf else None
+            )
             try:
                 q_pre = self._solve(T_pre, q_home, "pre-push pose")
-                q_start = self._solve(T_start, q_pre, "push start")
-                qs, q_prev = [], q_start
-                for k in range(1, cfg.push_via_points + 1):
-                    q_prev = self._solve(
-                        tool_pose(R, p0 + v * k / cfg.push_via_points), q_prev, "push via point"
-                    )
-                    qs.append(q_prev)
-                q_post = self._solve(T_post, qs[-1], "post-push pose")
+                q_in = self._tool_line(T_pre, T_start, q_pre, "push approach")
+                qs = self._tool_line(
+                    T_start, T_end, q_in[-1], "push via point", n=cfg.push_via_points
+                )
+                q_out = self._tool_line(T_end, T_post, qs[-1], "post-push retreat")
             except PreconditionError as exc:
                 errors.append(str(exc))
                 continue
-            if np.max(np.abs(np.diff(np.stack([q_start, *qs]), axis=0))) > 0.6:
+            if np.max(np.abs(np.diff(np.stack([q_pre, *q_in, *qs, *q_out]), axis=0))) > 0.6:
                 errors.append("push path needs a joint flip (unreachable as a straight line)")
                 continue
-            plan = (q_pre, q_start, qs, q_post)
+            plan = (q_pre, q_in, qs, q_out)
             break
         if plan is None:
             raise PreconditionError(f"push unreachable: {errors[0]}")
-        q_pre, q_start, qs, q_post = plan
+        q_pre, q_in, qs, q_out = plan
         self._check_free(q_pre, 0.0, "pre-push configuration")
-        self._check_free(q_start, 0.0, "push start configuration")
+        for q in q_in:
+            self._check_free(q, 0.0, "push approach configuration")
         self._check_free(qs[-1], 0.0, "push end configuration")
+        for q in q_out:
+            self._check_free(q, 0.0, "post-push retreat configuration")
         self._check_path(r.q(), q_pre, 0.0, "pre-push pose")
-        self._check_path(q_post, q_home, 0.0, "home")
+        self._check_path(q_out[-1], q_home, 0.0, "home")
 
         before = self.get_state()
         t0 = self._time
@@ -646,10 +667,10 @@ class Simulator:
         else:
             r.actuate_gripper(0.0, max_time=0.3)
             r.move_joints(q_pre)
-        r.move_joints(q_start, speed=0.2)
+        r.follow(q_in, [cfg.push_approach_step / cfg.push_transit_speed] * len(q_in))
         seg = float(np.linalg.norm(v)) / cfg.push_via_points / cfg.push_speed
         r.follow(qs, [seg] * len(qs))
-        r.move_joints(q_post, speed=0.2)
+        r.follow(q_out, [cfg.push_approach_step / cfg.push_transit_speed] * len(q_out))
         if teleport:
             r.reset_q(q_home, 0.0)
             self._settle(self._bodies)  # what the move home gave: objects at rest

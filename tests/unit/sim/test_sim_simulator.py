@@ -5,6 +5,7 @@ One ``Simulator`` (one PyBullet DIRECT client) is shared by the module; each tes
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -370,6 +371,20 @@ def test_deep_shelf_push_retreats_straight_out_of_the_opening(sim):
     r = sim.push(p0, v)
     assert r.success, r.message
     assert r.after.objects[0].position[1] > box.position[1] + 0.03
+
+
+def test_deep_shelf_push_moves_the_hand_in_along_a_straight_line(sim):
+    """A push starting 20 cm deep in the shelf (a step of a traced search episode that pushed
+    this box five times): on the joint-space line from the pre-push pose at the opening to the
+    start, the hand dipped under the floor board and stalled there, so the push reported
+    success and moved nothing. The tool now goes in (and back out) along a straight line."""
+    s = sim.config.shelf
+    b = box((0.056, 0.066, 0.148), s.front_x + 0.195, -0.12, yaw=-0.836)
+    b = dataclasses.replace(b, position=(b.position[0], b.position[1], s.bottom_z + 0.074))
+    sim.reset(SceneSpec(kind="shelf", objects=(b,), seed=0))
+    r = sim.push(np.array([s.front_x + 0.2, -0.19, s.bottom_z + 0.074]), np.array([0, 0.15, 0]))
+    assert r.success, r.message
+    assert r.after.objects[0].position[1] > b.position[1] + 0.05
 
 
 def test_grasp_through_the_shelf_top_is_refused(sim):
