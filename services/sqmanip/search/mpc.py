@@ -140,7 +140,12 @@ class SearchPlanner:
         move), where the objects a refused grasp hit (the check's ``last_blockers``) count as
         obstacles of it until they moved 2 cm (:func:`_unblocked`).
         When no candidate passes even without objects, no rearrangement can make the target
-        graspable and the decision is ``none``."""
+        graspable and the decision is ``none``.
+
+        Pushes whose hand or slide may touch where the target may stand are sampled only when
+        nothing else is valid, or when the target is seen and no sequence of the others makes
+        it graspable in a predicted scene: a blocker beside the target may be movable only so
+        (ours)."""
         if target_visible and target_pose is None:
             raise ValidationError("target_pose is required when target_visible is true")
         rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
@@ -230,20 +235,17 @@ class SearchPlanner:
                     checked[key] = bool(grasp_check(T.double().numpy()[None], True)[0])
                 return checked[key]
 
+        def sample(push_keep_out: bool) -> list[Action]:
+            cands = sampler.candidates(scene, keep_out, push_keep_out, pick_ok)
+            out = sampler.sample(scene, rng, cfg.n_sequences, keep_out, cands)
+            return [a for a in out if self.feasible(a, shelf) and (reject is None or not reject(a))]
+
         # pushes that may sweep where the target may stand come only when nothing else is
         # left, priced by that risk (risk_weight); picks and places always keep out of it
-        first: list[Action] = []
-        for push_keep_out in (True, False):
-            cands = sampler.candidates(scene, keep_out, push_keep_out, pick_ok)
-            first = sampler.sample(scene, rng, cfg.n_sequences, keep_out, cands)
-            first = [
-                a for a in first if self.feasible(a, shelf) and (reject is None or not reject(a))
-            ]
-            if first or not keep_out.numel():
-                break
-        risk = np.array(
-            [sampler.push_risk(scene, a, keep_out) if isinstance(a, Push) else 0.0 for a in first]
-        )
+        first = sample(True)
+        swept = not first and bool(keep_out.numel())
+        if swept:
+            first = sample(False)
         times["sample"] = (time.perf_counter() - t) * 1e3
         if not first:
             times["total"] = (time.perf_counter() - t0) * 1e3
@@ -252,10 +254,23 @@ class SearchPlanner:
         later = allowed_later
         if allowed_later is not None and blockers:
             later = functools.partial(_unblocked, allowed_later, blockers, scene)
-        costs = self._rollouts(
-            scene, root, first, ev, sampler, shelf, target_visible, target_pose, rng, later
-        )
+
+        def rollouts(actions):
+            return self._rollouts(
+                scene, root, actions, ev, sampler, shelf, target_visible, target_pose, rng, later
+            )
+
+        costs, grasps = rollouts(first)
+        if target_visible and not swept and not grasps.any():
+            # the target is seen and no sequence that keeps off it makes it graspable
+            more = sample(False)
+            if more:
+                c, _ = rollouts(more)
+                first, costs = first + more, np.concatenate([costs, c])
         times["rollout"] = (time.perf_counter() - t) * 1e3
+        risk = np.array(
+            [sampler.push_risk(scene, a, keep_out) if isinstance(a, Push) else 0.0 for a in first]
+        )
         costs = costs + cfg.risk_weight * risk * max(root.J, 1.0)
         best = int(np.argmin(costs))
         a = first[best]
@@ -288,10 +303,14 @@ class SearchPlanner:
 
     def _rollouts(
         self, scene, root: Maps, first, ev, sampler, shelf, visible, target_pose, rng, allowed=None
-    ):
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Cost (5.4.6) of each sequence starting with ``first[s]``, and whether ``f * g`` is
+        non-zero anywhere in one of its predicted scenes (a graspable pose where the target
+        may stand)."""
         cfg = self.config
         grid = ev.em.grid
         costs = np.zeros(len(first))
+        grasps = np.zeros(len(first), dtype=bool)
         self._shelf = shelf
         states = apply_actions(scene, first, self.dynamics, shelf)
         for s, s1 in enumerate(states):
@@ -304,6 +323,7 @@ class SearchPlanner:
                     state, visible=visible, target_pose=target_pose, prior=f_prev, allowed=ok
                 )
                 J.append(m.J)
+                grasps[s] |= bool((m.f * m.g).any())
                 f_prev = m.f
                 if step + 1 == cfg.horizon:
                     break
@@ -313,7 +333,7 @@ class SearchPlanner:
                     break
                 state = apply_actions(state, [nxt], self.dynamics, shelf)[0]
             costs[s] = sequence_cost(J, cfg.gamma)
-        return costs
+        return costs, grasps
 
     def _keep_out(self, xy: torch.Tensor, f: torch.Tensor, target: TargetSpec) -> torch.Tensor:
         """``(Q, 3)`` discs ``(x, y, r)`` where the target may stand (``f = 1``), widened by

@@ -306,3 +306,29 @@ def test_predicted_grasps_count_the_blockers_the_robot_named_until_they_move():
     assert i == 5 and torch.equal(ok0, ok) and extra.tolist() == [2, 1, 0, 0]
     _, _, extra = _unblocked((5, ok), blockers, scene, moved)
     assert extra.tolist() == [1, 1, 0, 0]
+
+
+def test_a_blocker_beside_the_seen_target_is_pushed_even_where_the_pusher_sweeps_it():
+    """The robot names a wide box beside the seen target as what blocks its every grasp. No
+    push of it keeps the hand off the target's disc and it is too wide to pick, so every
+    sequence that keeps off the target leaves the target ungraspable: the planner then also
+    weighs the pushes beside the target and pushes the box away (the only move that helps),
+    instead of shuffling the other box."""
+    torch.set_num_threads(1)
+    cfg = SearchConfig(resolution=0.04, n_sequences=16, horizon=1)
+    planner = SearchPlanner(KinematicPushDynamics(), None, cfg)
+    objs = [box(0.76, 0.09, 0.09, 0.09, 0.15), box(0.60, -0.20, 0.05, 0.05, 0.10)]
+    pose = np.eye(4)
+    pose[:3, 3] = (0.78, 0.0, SHELF.bottom_z + TARGET.size[2])
+
+    class Robot:
+        last_blockers: list = []
+
+        def __call__(self, poses, objects):
+            self.last_blockers = [frozenset({0})] * len(poses) if objects else []
+            return np.full(len(poses), not objects)
+
+    d = planner.decide(objs, TARGET, SHELF, SHELF.camera(), True, target_pose=pose, rng=0,
+                       grasp_check=Robot())  # fmt: skip
+    assert d.kind == "push" and d.params["object"] == 0 and d.params["direction"] == 1
+    assert d.params["target_risk"] > 0  # its hand sweeps the target's disc
