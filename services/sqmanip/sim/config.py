@@ -117,7 +117,7 @@ class SimConfig:
     push_via_points: int = 10
     push_approach_step: float = 0.02
     """Spacing (m) of the IK'd tool poses on the straight lines from the pre-push pose to the
-    start and from the end to the post-push pose."""
+    start and from the end to the post-push pose (shelf pushes)."""
     push_transit_speed: float = 0.20
     """Tool speed (m/s) on those two lines."""
     push_transit: Literal["move", "teleport"] = "move"

@@ -566,17 +566,16 @@ class Simulator:
             raise err
 
     def _tool_line(
-        self, T0: np.ndarray, T1: np.ndarray, q0: np.ndarray, what: str, n: int | None = None
+        self, T0: np.ndarray, T1: np.ndarray, q0: np.ndarray, what: str
     ) -> list[np.ndarray]:
         """Configurations along the straight tool line from ``T0`` (at ``q0``) to ``T1`` (same
-        orientation): ``n`` evenly spaced poses, by default one per ``push_approach_step``,
-        each IK seeded at the previous one; the last is at ``T1``. A joint-space line between
+        orientation): evenly spaced poses, one per ``push_approach_step``, each IK seeded at
+        the previous one; the last is at ``T1``. A joint-space line between
         the ends instead can sweep the hand far off the line: from the pre-push pose at the
         shelf opening to a start 20 cm deep it dipped under the floor board and stalled there,
         and the push then moved nothing."""
         d = T1[:3, 3] - T0[:3, 3]
-        if n is None:
-            n = max(1, math.ceil(float(np.linalg.norm(d)) / self.config.push_approach_step))
+        n = max(1, math.ceil(float(np.linalg.norm(d)) / self.config.push_approach_step))
         out, q = [], q0
         for k in range(1, n + 1):
             q = self._solve(tool_pose(T1[:3, :3], T0[:3, 3] + d * k / n), q, what)
@@ -613,9 +612,12 @@ class Simulator:
 
     def push(self, p_start, v) -> ActionResult:
         """Push (Ch. 4.5): from home to the pre-push pose (:func:`push_tool_poses`), the tool
-        tip along a straight line to ``p`` with the Fig. 4.6 orientation, then to ``p + v``
-        through ``push_via_points`` via points at ``push_speed``, straight back to the
-        post-push pose and home (:meth:`_tool_line`)."""
+        tip to ``p`` with the Fig. 4.6 orientation, then to ``p + v`` through
+        ``push_via_points`` via points at ``push_speed``, back to the post-push pose and home.
+        In the shelf the moves to ``p`` and back go along straight tool lines
+        (:meth:`_tool_line`); on the tabletop the pre- and post-push poses are right above the
+        start and the end, and the joint-space moves between them (which the Table 4.6 runs and
+        the SQPD-Net data used) are kept."""
         r = self._require_robot()
         cfg = self.config
         p0 = as_point(p_start, "p")
@@ -632,17 +634,28 @@ class Simulator:
             T_pre, T_start, T_end, T_post = push_tool_poses(
                 p0, v, yaw, cfg.shelf if shelf else None
             )
+            R = T_start[:3, :3]
             try:
                 q_pre = self._solve(T_pre, q_home, "pre-push pose")
-                q_in = self._tool_line(T_pre, T_start, q_pre, "push approach")
-                qs = self._tool_line(
-                    T_start, T_end, q_in[-1], "push via point", n=cfg.push_via_points
-                )
-                q_out = self._tool_line(T_end, T_post, qs[-1], "post-push retreat")
+                if shelf:
+                    q_in = self._tool_line(T_pre, T_start, q_pre, "push approach")
+                else:
+                    q_in = [self._solve(T_start, q_pre, "push start")]
+                qs, q_prev = [], q_in[-1]
+                for k in range(1, cfg.push_via_points + 1):
+                    q_prev = self._solve(
+                        tool_pose(R, p0 + v * k / cfg.push_via_points), q_prev, "push via point"
+                    )
+                    qs.append(q_prev)
+                if shelf:
+                    q_out = self._tool_line(T_end, T_post, qs[-1], "post-push retreat")
+                else:
+                    q_out = [self._solve(T_post, qs[-1], "post-push pose")]
             except PreconditionError as exc:
                 errors.append(str(exc))
                 continue
-            if np.max(np.abs(np.diff(np.stack([q_pre, *q_in, *qs, *q_out]), axis=0))) > 0.6:
+            path = [q_pre, *q_in, *qs, *q_out] if shelf else [*q_in, *qs]
+            if np.max(np.abs(np.diff(np.stack(path), axis=0))) > 0.6:
                 errors.append("push path needs a joint flip (unreachable as a straight line)")
                 continue
             plan = (q_pre, q_in, qs, q_out)
@@ -654,7 +667,7 @@ class Simulator:
         for q in q_in:
             self._check_free(q, 0.0, "push approach configuration")
         self._check_free(qs[-1], 0.0, "push end configuration")
-        for q in q_out:
+        for q in q_out if shelf else ():
             self._check_free(q, 0.0, "post-push retreat configuration")
         self._check_path(r.q(), q_pre, 0.0, "pre-push pose")
         self._check_path(q_out[-1], q_home, 0.0, "home")
@@ -667,10 +680,17 @@ class Simulator:
         else:
             r.actuate_gripper(0.0, max_time=0.3)
             r.move_joints(q_pre)
-        r.follow(q_in, [cfg.push_approach_step / cfg.push_transit_speed] * len(q_in))
+        line = [cfg.push_approach_step / cfg.push_transit_speed]
+        if shelf:
+            r.follow(q_in, line * len(q_in))
+        else:
+            r.move_joints(q_in[0], speed=0.2)
         seg = float(np.linalg.norm(v)) / cfg.push_via_points / cfg.push_speed
         r.follow(qs, [seg] * len(qs))
-        r.follow(q_out, [cfg.push_approach_step / cfg.push_transit_speed] * len(q_out))
+        if shelf:
+            r.follow(q_out, line * len(q_out))
+        else:
+            r.move_joints(q_out[0], speed=0.2)
         if teleport:
             r.reset_q(q_home, 0.0)
             self._settle(self._bodies)  # what the move home gave: objects at rest
