@@ -289,13 +289,14 @@ def config_overrides(items: list[str]) -> dict[str, Any]:
     from sqmanip.errors import ValidationError
     from sqmanip.search import SearchConfig
 
-    fields = {f.name: f for f in dataclasses.fields(SearchConfig)}
+    names = {f.name for f in dataclasses.fields(SearchConfig)} - {"method"}
+    defaults = SearchConfig()
     out: dict[str, Any] = {}
     for item in items:
         name, sep, value = item.partition("=")
-        if not sep or name not in fields or name == "method":
+        if not sep or name not in names:
             raise ValueError(f"--set {item!r}: expected NAME=VALUE with NAME a SearchConfig field")
-        default = getattr(SearchConfig(), name)
+        default = getattr(defaults, name)
         if isinstance(default, bool):
             out[name] = value.lower() in ("1", "true", "yes")
         elif isinstance(default, (int, float, str)):

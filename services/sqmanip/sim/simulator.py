@@ -680,17 +680,17 @@ class Simulator:
         else:
             r.actuate_gripper(0.0, max_time=0.3)
             r.move_joints(q_pre)
-        line = [cfg.push_approach_step / cfg.push_transit_speed]
-        if shelf:
-            r.follow(q_in, line * len(q_in))
-        else:
-            r.move_joints(q_in[0], speed=0.2)
+
+        def transit(q_line: list[np.ndarray]) -> None:  # to the start, or back from the end
+            if shelf:
+                r.follow(q_line, [cfg.push_approach_step / cfg.push_transit_speed] * len(q_line))
+            else:
+                r.move_joints(q_line[-1], speed=0.2)
+
+        transit(q_in)
         seg = float(np.linalg.norm(v)) / cfg.push_via_points / cfg.push_speed
         r.follow(qs, [seg] * len(qs))
-        if shelf:
-            r.follow(q_out, line * len(q_out))
-        else:
-            r.move_joints(q_out[0], speed=0.2)
+        transit(q_out)
         if teleport:
             r.reset_q(q_home, 0.0)
             self._settle(self._bodies)  # what the move home gave: objects at rest
