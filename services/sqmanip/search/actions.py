@@ -430,22 +430,25 @@ class ActionSampler:
         self,
         scene: SceneState,
         keep_out: torch.Tensor | None,
-        push_keep_out: bool = True,
+        hand_keep_out: bool = True,
         pick_ok: Callable[[torch.Tensor], bool] | None = None,
+        slide_keep_out: bool = True,
     ):
         """``I_p`` and ``I_g`` with their valid pushes / (grasps, spots) per object; a push is
-        ``(direction, gripper pose, start, lengths)``. ``push_keep_out=False`` lets pushes
-        sweep where the target may stand (the fallback when nothing else is left). An object's
-        pick uses its first collision-free grasp with a free spot that ``pick_ok`` (the robot's
-        own IK and arm checks, when known) accepts."""
+        ``(direction, gripper pose, start, lengths)``. ``hand_keep_out=False`` lets the hand on
+        its way in, ``slide_keep_out=False`` the pushed object's slide, sweep where the target
+        may stand (the fallbacks of :meth:`.mpc.SearchPlanner.decide`). An object's pick uses
+        its first collision-free grasp with a free spot that ``pick_ok`` (the robot's own IK
+        and arm checks, when known) accepts."""
         pushes, picks = {}, {}
-        push_out = keep_out if push_keep_out else None
+        hand_out = keep_out if hand_keep_out else None
+        slide_out = keep_out if slide_keep_out else None
         for i in range(len(scene)):
             if self.config.actions in ("both", "push"):
                 p = [
                     (*q, ds)
-                    for q in self.push_poses(scene, i, push_out)
-                    if (ds := self.push_distances(scene, i, q[0], push_out))
+                    for q in self.push_poses(scene, i, hand_out)
+                    if (ds := self.push_distances(scene, i, q[0], slide_out))
                 ]
                 if p:
                     pushes[i] = p

@@ -145,7 +145,8 @@ class SearchPlanner:
         Pushes whose hand or slide may touch where the target may stand are sampled only when
         nothing else is valid, or when the target is seen and no sequence of the others makes
         it graspable in a predicted scene: a blocker beside the target may be movable only so
-        (ours)."""
+        (ours). A seen target is never in the way of a pushed object: only the hand may pass
+        by it."""
         if target_visible and target_pose is None:
             raise ValidationError("target_pose is required when target_visible is true")
         rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
@@ -235,17 +236,19 @@ class SearchPlanner:
                     checked[key] = bool(grasp_check(T.double().numpy()[None], True)[0])
                 return checked[key]
 
-        def sample(push_keep_out: bool) -> list[Action]:
-            cands = sampler.candidates(scene, keep_out, push_keep_out, pick_ok)
+        def sample(hand: bool, slide: bool) -> list[Action]:
+            cands = sampler.candidates(scene, keep_out, hand, pick_ok, slide)
             out = sampler.sample(scene, rng, cfg.n_sequences, keep_out, cands)
             return [a for a in out if self.feasible(a, shelf) and (reject is None or not reject(a))]
 
         # pushes that may sweep where the target may stand come only when nothing else is
-        # left, priced by that risk (risk_weight); picks and places always keep out of it
-        first = sample(True)
+        # left, priced by that risk (risk_weight); picks and places always keep out of it. A
+        # seen target is never in the pushed object's way: it would be shoved along, and the
+        # push model (which moves the pushed object only) cannot tell where to
+        first = sample(True, True)
         swept = not first and bool(keep_out.numel())
         if swept:
-            first = sample(False)
+            first = sample(False, target_visible)
         times["sample"] = (time.perf_counter() - t) * 1e3
         if not first:
             times["total"] = (time.perf_counter() - t0) * 1e3
@@ -263,7 +266,7 @@ class SearchPlanner:
         costs, grasps = rollouts(first)
         if target_visible and not swept and not grasps.any():
             # the target is seen and no sequence that keeps off it makes it graspable
-            more = sample(False)
+            more = sample(False, True)
             if more:
                 c, _ = rollouts(more)
                 first, costs = first + more, np.concatenate([costs, c])

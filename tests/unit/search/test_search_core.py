@@ -332,3 +332,31 @@ def test_a_blocker_beside_the_seen_target_is_pushed_even_where_the_pusher_sweeps
                        grasp_check=Robot())  # fmt: skip
     assert d.kind == "push" and d.params["object"] == 0 and d.params["direction"] == 1
     assert d.params["target_risk"] > 0  # its hand sweeps the target's disc
+
+
+def test_a_seen_target_is_never_in_the_way_of_a_pushed_object():
+    """The wide blocker, now on the target's right, and its push away from the target refused
+    (``reject``, as after the robot refused it): the only push of it left would slide it into
+    the seen target and shove the target along, which the push model (the pushed object only)
+    cannot predict. The planner pushes the other box instead of the blocker into the target."""
+    torch.set_num_threads(1)
+    cfg = SearchConfig(resolution=0.04, n_sequences=16, horizon=1)
+    planner = SearchPlanner(KinematicPushDynamics(), None, cfg)
+    objs = [box(0.76, -0.09, 0.09, 0.09, 0.15), box(0.60, 0.20, 0.05, 0.05, 0.10)]
+    pose = np.eye(4)
+    pose[:3, 3] = (0.78, 0.0, SHELF.bottom_z + TARGET.size[2])
+
+    class Robot:
+        last_blockers: list = []
+
+        def __call__(self, poses, objects):
+            self.last_blockers = [frozenset({0})] * len(poses) if objects else []
+            return np.full(len(poses), not objects)
+
+    def refused(a):
+        return getattr(a, "obj", -1) == 0 and getattr(a, "direction", 0) == -1
+
+    for seed in range(4):
+        d = planner.decide(objs, TARGET, SHELF, SHELF.camera(), True, target_pose=pose,
+                           rng=seed, grasp_check=Robot(), reject=refused)  # fmt: skip
+        assert d.kind == "push" and d.params["object"] == 1, (seed, d.kind, d.params)
