@@ -46,6 +46,18 @@ def idx_near(grid, x, y):
     return int(((grid.xy - torch.tensor([x, y])) ** 2).sum(-1).argmin())
 
 
+class BlockedBy:
+    """A robot grasp check that passes every grasp without the objects and none with them,
+    naming object ``i`` as what each refused grasp hits."""
+
+    def __init__(self, i: int) -> None:
+        self.i, self.last_blockers = i, []
+
+    def __call__(self, poses, objects):
+        self.last_blockers = [frozenset({self.i})] * len(poses) if objects else []
+        return np.full(len(poses), not objects)
+
+
 def test_f_is_one_behind_a_box_and_zero_in_seen_space_and_inside(models):
     grid, em, _ = models
     scene = SceneState.from_objects([box(0.60, 0.0, 0.08, 0.26, 0.25)])
@@ -321,15 +333,8 @@ def test_a_blocker_beside_the_seen_target_is_pushed_even_where_the_pusher_sweeps
     pose = np.eye(4)
     pose[:3, 3] = (0.78, 0.0, SHELF.bottom_z + TARGET.size[2])
 
-    class Robot:
-        last_blockers: list = []
-
-        def __call__(self, poses, objects):
-            self.last_blockers = [frozenset({0})] * len(poses) if objects else []
-            return np.full(len(poses), not objects)
-
     d = planner.decide(objs, TARGET, SHELF, SHELF.camera(), True, target_pose=pose, rng=0,
-                       grasp_check=Robot())  # fmt: skip
+                       grasp_check=BlockedBy(0))  # fmt: skip
     assert d.kind == "push" and d.params["object"] == 0 and d.params["direction"] == 1
     assert d.params["target_risk"] > 0  # its hand sweeps the target's disc
 
@@ -346,17 +351,10 @@ def test_a_seen_target_is_never_in_the_way_of_a_pushed_object():
     pose = np.eye(4)
     pose[:3, 3] = (0.78, 0.0, SHELF.bottom_z + TARGET.size[2])
 
-    class Robot:
-        last_blockers: list = []
-
-        def __call__(self, poses, objects):
-            self.last_blockers = [frozenset({0})] * len(poses) if objects else []
-            return np.full(len(poses), not objects)
-
     def refused(a):
         return getattr(a, "obj", -1) == 0 and getattr(a, "direction", 0) == -1
 
     for seed in range(4):
         d = planner.decide(objs, TARGET, SHELF, SHELF.camera(), True, target_pose=pose,
-                           rng=seed, grasp_check=Robot(), reject=refused)  # fmt: skip
+                           rng=seed, grasp_check=BlockedBy(0), reject=refused)  # fmt: skip
         assert d.kind == "push" and d.params["object"] == 1, (seed, d.kind, d.params)
