@@ -2,8 +2,8 @@
 3.3, 3.5; Figs. 3.6, 3.10).
 
 Run: ``python -m benchmarks.recognition_learned [--quick]``. Writes
-``benchmarks/results/recognition_learned.json`` (and ``recognition_learned_iou_time.png`` when
-matplotlib is installed).
+``benchmarks/results/recognition_learned.json``, ``recognition_learned_iou_time.png`` (Fig. 3.6)
+and ``recognition_learned_occlusion.png`` (Fig. 3.10).
 
 Methods, each on one segment cloud resampled to 300 points (3.5.3, the pipeline's
 ``preprocess.resample``), with the camera position of the view known (the datasets store it):
@@ -12,18 +12,20 @@ Methods, each on one segment cloud resampled to 300 points (3.5.3, the pipeline'
 - ``DSQOpt``: the plain radial-distance fit (3.5.1; ``fit_segments(amodal=False)``);
 - ``optimization``: SQManip's amodal fitter (free space seen by the camera; there is no support
   plane in these datasets, the shapes float in random orientations);
-- one column per network directory given (``--models``; default ``models/dsqnet_cpu``);
-- ``hybrid``: the first network refined by the fitter (:mod:`sqmanip.perception.learned.hybrid`).
+- one column per network directory given (``--models``; default the shipped SQNet, DSQNet and
+  DSQNet+ under ``models/``); DSQNet+ sees the whole object's cloud as its context (3.6.2);
+- ``hybrid``: the DSQNet column refined by the fitter (:mod:`sqmanip.perception.learned.hybrid`).
 
 Tables: (3.2) volumetric IoU per primitive type on the test split of the *primitive* dataset
 (``--data``); (3.3) IoU per object type on the test split of the *object* dataset, the parts
-cut out with the ground-truth labels (the thesis uses its segmentation network), IoU of the union
+cut out with the ground-truth labels (``--segmentation network``: by the shipped segmentation
+network, as the thesis does), IoU of the union
 of predicted parts against the union of all ground-truth parts (hidden parts included); (3.5) the
 multi-part rows of the same with the thesis' SQNet / DSQNet / DSQNet+ beside. Recognition time
-per object (ms, median, 1 torch thread, on this shared machine). Fig. 3.10: IoU of the first
-network against the occlusion ratio of a virtual square occluder (single-primitive object types,
-ratio bins of 5 %, the remaining points resampled to 300). Fig. 3.6: mean IoU against mean time
-per object on the object dataset.
+per object (ms, median, 1 torch thread, on this shared machine). Fig. 3.10: IoU of DSQNet (else
+the first network) against the occlusion ratio of a virtual square occluder (single-primitive
+object types, ratio bins of 5 %, the remaining points resampled to 300). Fig. 3.6: mean IoU
+against median time per object on the object dataset.
 
 If ``--object-data`` holds no object dataset, a small one is generated there first
 (``--object-shapes`` shapes per type, ``--object-views`` views; its test split is the last shape
@@ -54,12 +56,14 @@ from sqmanip.perception.learned.datasets import (
     load_dataset,
 )
 from sqmanip.perception.learned.hybrid import refine_parts
-from sqmanip.perception.learned.infer import NetworkRecognizer, to_superquadric
+from sqmanip.perception.learned.infer import NetworkRecognizer, NetworkSegmenter, to_superquadric
 from sqmanip.perception.mvbb import mvbb_fit
 from sqmanip.perception.preprocess import resample
 
 RESULTS = Path(__file__).parent / "results" / "recognition_learned.json"
 PNG = Path(__file__).parent / "results" / "recognition_learned_iou_time.png"
+OCCLUSION_PNG = Path(__file__).parent / "results" / "recognition_learned_occlusion.png"
+DEFAULT_MODELS = ["models/sqnet_cpu", "models/dsqnet_cpu", "models/dsqnet_plus_cpu"]
 NAMES = {"B": "B", "E": "E", "CY": "CY", "C": "C", "TC": "TC", "TT": "TT", "bottle": "Bottle",
          "hammer": "Hammer", "mug": "Mug", "dumbbell": "Dumbbell", "padlock": "Padlock",
          "screwdriver": "Screwdriver"}  # fmt: skip
@@ -103,7 +107,7 @@ def machine_facts() -> dict:
 
 
 class Methods:
-    """Every method maps ``(segments: list[(300, 3)], eye (3,))`` -> list of world parts."""
+    """Every method maps ``(segments: list[(300, 3)], eye (3,), cloud)`` -> list of world parts."""
 
     def __init__(
         self, model_dirs: list[Path], settings: PerceptionSettings, only: list[str] | None = None
@@ -114,13 +118,19 @@ class Methods:
             rec = NetworkRecognizer.load(d, device="cpu")
             self.nets[f"{rec.name}:{d.name}"] = rec
         names = ["MVBB", "DSQOpt", "optimization", *self.nets]
-        if self.nets:
+        deformable = [r for r in self.nets.values() if r.name == "dsqnet"]
+        self.hybrid_base = deformable[0] if deformable else None
+        if self.hybrid_base is not None:
             names.append("hybrid")
         if only:  # "network" selects every network column
             names = [n for n in names if n in only or ("network" in only and n in self.nets)]
         self.names = names
 
-    def run(self, name: str, segs: list[np.ndarray], eye: np.ndarray) -> list[Superquadric]:
+    def run(
+        self, name: str, segs: list[np.ndarray], eye: np.ndarray, cloud: np.ndarray
+    ) -> list[Superquadric]:
+        """Parts for the segments ``segs`` of one view; ``cloud`` is the whole view (DSQNet+'s
+        context, with each part's natural share of the points)."""
         s = self.settings
         if name == "MVBB":
             return [mvbb_fit(x) for x in segs]
@@ -130,10 +140,9 @@ class Methods:
                                 amodal=amodal)  # fmt: skip
             return [f.part for f in fits]
         if name == "hybrid":
-            first = next(iter(self.nets.values()))
-            net = first.predict(segs)
+            net = self.hybrid_base.predict(segs)
             return [f.part for f in refine_parts(segs, net, viewpoint=eye, settings=s)]
-        return self.nets[name].predict(segs)
+        return self.nets[name].predict(segs, context=cloud)
 
 
 def _gt_parts(data: dict, shape: int) -> list[Superquadric]:
@@ -163,21 +172,33 @@ def _pick(data: dict, types: tuple[str, ...], per_type: int | None, seed: int) -
     return out
 
 
-def evaluate(methods: Methods, data: dict, items: list[int], iou_n: int, seed: int) -> dict:
-    """Per item and method: IoU and time; returns ``{type: {method: {"iou": [..], "ms": [..]}}}``."""
+def evaluate(
+    methods: Methods,
+    data: dict,
+    items: list[int],
+    iou_n: int,
+    seed: int,
+    segmenter: NetworkSegmenter | None = None,
+) -> dict:
+    """Per item and method: IoU and time; returns ``{type: {method: {"iou": [..], "ms": [..]}}}``.
+
+    Parts are cut out by the ground-truth labels, or by ``segmenter``'s (not timed)."""
     rng = np.random.default_rng(seed)
     out: dict[str, dict[str, dict[str, list[float]]]] = {}
     for it in items:
         shape = int(data["shape_idx"][it])
         tname = OBJECT_TYPES[int(data["type_id"][shape])]
-        segs = _segments(data["partial"][it], data["labels"][it], rng)
+        labels = data["labels"][it]
+        if segmenter is not None:
+            labels = segmenter.segment(data["partial"][it].astype(np.float64))
+        segs = _segments(data["partial"][it], labels, rng)
         if not segs:
             continue
         eye = data["camera"][it][:3, 3].astype(np.float64)
         gt = _gt_parts(data, shape)
         for name in methods.names:
             t0, c0 = time.perf_counter(), time.process_time()
-            parts = methods.run(name, segs, eye)
+            parts = methods.run(name, segs, eye, data["partial"][it].astype(np.float64))
             ms, cpu_ms = 1e3 * (time.perf_counter() - t0), 1e3 * (time.process_time() - c0)
             iou = volume_iou(parts, gt, n=iou_n, generator=it)
             rec = out.setdefault(tname, {}).setdefault(name, {"iou": [], "ms": [], "cpu_ms": []})
@@ -278,25 +299,54 @@ def summarise(res: dict, types: tuple[str, ...], names: list[str]) -> dict:
     return out
 
 
-def maybe_png(points: dict[str, tuple[float, float]]) -> str | None:
-    try:
-        import matplotlib
+def iou_time_png(points: dict[str, tuple[float, float]]) -> str:
+    """Fig. 3.6: mean IoU against median recognition time per object, one point per method."""
+    import matplotlib
 
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        return None
-    fig, ax = plt.subplots(figsize=(5, 4))
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4.2))
     for name, (ms, iou) in points.items():
-        ax.scatter([ms], [iou], label=name)
+        ax.scatter([ms], [iou], s=40)
+        ax.annotate(name, (ms, iou), textcoords="offset points", xytext=(5, 4), fontsize=8)
+    ax.axhline(THESIS_33["Average"][3], ls="--", lw=0.8, color="gray")
+    ax.annotate("thesis DSQNet (RTX 3090, 43 ms)", (ax.get_xlim()[0], THESIS_33["Average"][3]),
+                textcoords="offset points", xytext=(4, 3), fontsize=7, color="gray")  # fmt: skip
     ax.set_xscale("log")
-    ax.set_xlabel("recognition time per object (ms)")
+    ax.set_xlabel("recognition time per object (ms, median, 1 CPU thread)")
     ax.set_ylabel("mean volumetric IoU (object dataset)")
-    ax.legend(fontsize=7)
+    ax.set_title("IoU against recognition time (Fig. 3.6 layout)", fontsize=10)
     fig.tight_layout()
     PNG.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(PNG, dpi=120)
+    plt.close(fig)
     return str(PNG)
+
+
+def occlusion_png(per_type: dict[str, dict[str, float]], mean: dict[str, float], name: str) -> str:
+    """Fig. 3.10: IoU against occlusion ratio, one line per primitive type and the mean."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    keys = list(mean)
+    x = [0.5 * (lo + hi) * 100 for lo, hi in zip(BINS[:-1], BINS[1:], strict=True)]
+    fig, (left, right) = plt.subplots(1, 2, figsize=(9, 3.8), sharey=True)
+    for t, curve in per_type.items():
+        left.plot(x, [curve.get(k, float("nan")) for k in keys], marker="o", ms=3, label=t)
+    right.plot(x, [mean[k] for k in keys], marker="o", color="k", label="mean")
+    right.axhline(0.7, ls="--", lw=0.8, color="gray")
+    for ax in (left, right):
+        ax.set_xlabel("occlusion ratio (%)")
+        ax.legend(fontsize=7)
+    left.set_ylabel(f"volumetric IoU ({name})")
+    fig.suptitle("IoU against occlusion ratio (Fig. 3.10 layout; dashed: 0.7)", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(OCCLUSION_PNG, dpi=120)
+    plt.close(fig)
+    return str(OCCLUSION_PNG)
 
 
 # --- main ----------------------------------------------------------------------------------------
@@ -309,7 +359,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--object-data", default="runs/recognition_bench_objects")
     ap.add_argument("--object-shapes", type=int, default=2)
     ap.add_argument("--object-views", type=int, default=8)
-    ap.add_argument("--models", nargs="*", default=["models/dsqnet_cpu"])
+    ap.add_argument(
+        "--models",
+        nargs="*",
+        default=DEFAULT_MODELS,
+        help="network checkpoint directories, one column each (default: %(default)s)",
+    )
+    ap.add_argument(
+        "--segmentation",
+        choices=["labels", "network"],
+        default="labels",
+        help="cut object clouds into parts by the ground-truth labels or by the "
+        "segmentation network (--segnet)",
+    )
+    ap.add_argument("--segnet", default="models/segnet_cpu", help="segmentation checkpoint")
     ap.add_argument("--per-type", type=int, default=None, help="test items per type (all)")
     ap.add_argument("--occlusion-per-bin", type=int, default=None)
     ap.add_argument("--methods", nargs="*", default=None,
@@ -357,12 +420,17 @@ def main(argv: list[str] | None = None) -> int:
         generate(spec, workers=1, progress=False)
     obj = load_dataset(obj_root, "object")
     items = _pick(obj, OBJECT_TYPES, per_type, args.seed)
+    segmenter = None
+    if args.segmentation == "network":
+        segmenter = NetworkSegmenter.load(args.segnet, device="cpu")
+    results["segmentation"] = args.segmentation
     t0 = time.time()
-    res = evaluate(methods, obj, items, iou_n, args.seed + 1)
+    res = evaluate(methods, obj, items, iou_n, args.seed + 1, segmenter)
     t33 = summarise(res, OBJECT_TYPES, methods.names)
     results["table_3_3_object"] = t33
-    _table(f"Table 3.3 layout: IoU, object dataset test split ({len(items)} views, ground-truth "
-           f"part labels, {time.time() - t0:.0f} s)", [*OBJECT_TYPES, "Average"], methods.names,
+    cut = "ground-truth part labels" if segmenter is None else "segmentation network"
+    _table(f"Table 3.3 layout: IoU, object dataset test split ({len(items)} views, {cut}, "
+           f"{time.time() - t0:.0f} s)", [*OBJECT_TYPES, "Average"], methods.names,
            lambda r, c: t33.get(r, {}).get(c, {}).get("iou", float("nan")),
            ("MVBB", "PS-CNN", "SQNet", "DSQNet"), THESIS_33)  # fmt: skip
     t35 = summarise(res, MULTI_PART_TYPES, methods.names)
@@ -382,11 +450,14 @@ def main(argv: list[str] | None = None) -> int:
     results["cpu_ms_per_object"] = {m: t33["Average"][m]["cpu_ms_median"] for m in methods.names}
     fig36 = {m: (timing[m], t33["Average"][m]["iou"]) for m in methods.names}
     results["fig_3_6_iou_vs_ms"] = fig36
-    png = maybe_png(fig36)
-    print(f"Fig. 3.6 PNG: {png or 'not written (matplotlib is not installed)'}")
+    print(f"Fig. 3.6 PNG: {iou_time_png(fig36)}")
 
     if methods.nets and not args.no_occlusion:
-        name, net = next(iter(methods.nets.items()))
+        # Fig. 3.10 is DSQNet's; the first network given stands in when there is none
+        name, net = next(
+            ((n, r) for n, r in methods.nets.items() if r is methods.hybrid_base),
+            next(iter(methods.nets.items())),
+        )
         t0 = time.time()
         occ = occlusion_curve(net, obj, _pick(obj, PRIMITIVE_TYPES, None, args.seed), per_bin,
                               iou_n, args.seed + 2)  # fmt: skip
@@ -404,9 +475,10 @@ def main(argv: list[str] | None = None) -> int:
         for k in keys:
             curve[k] = _mean([v for t in occ for v in occ[t].get(k, [])])
         print("mean".rjust(8) + "".join(f"{curve[k]:9.3f}" for k in keys))
-        results["fig_3_10_occlusion"] = {"per_type": {t: {k: _mean(v) for k, v in d.items()}
-                                                      for t, d in occ.items()}, "mean": curve}  # fmt: skip
+        per_type = {t: {k: _mean(v) for k, v in d.items()} for t, d in occ.items()}
+        results["fig_3_10_occlusion"] = {"network": name, "per_type": per_type, "mean": curve}
         print("thesis Fig. 3.10: mean IoU stays above 0.7 up to 25-30 % occlusion")
+        print(f"Fig. 3.10 PNG: {occlusion_png(per_type, curve, name)}")
 
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -1,8 +1,9 @@
-"""End to end with the shipped network: the launcher starts perception and the gateway on free
+"""End to end with the shipped networks: the launcher starts perception and the gateway on free
 loopback ports; a synthetic tabletop scene goes through the SDK with method=network and
-method=hybrid, which load ``models/dsqnet_cpu`` inside the perception process. Checks the
-wiring (one object per ground-truth object, parts where the objects are), not the model's
-accuracy, which the model card and ``benchmarks/recognition_learned.py`` report."""
+method=hybrid, which load ``models/dsqnet_cpu`` inside the perception process, and with
+segmentation=network (``models/segnet_cpu``). Checks the wiring (one object per ground-truth
+object, parts where the objects are), not the models' accuracy, which the model cards and
+``benchmarks/recognition_learned.py`` report."""
 
 from pathlib import Path
 
@@ -38,6 +39,19 @@ def test_learned_methods_answer_through_the_sdk(stack, method: str) -> None:
             assert all(0 < s < 0.6 for s in sq.size)
 
 
-def test_model_dir_resolves_to_the_repository() -> None:
-    assert default_model_dir("dsqnet_cpu").parts[-2:] == ("models", "dsqnet_cpu")
-    assert (Path(default_model_dir("dsqnet_cpu")) / "model.pt").is_file()
+def test_network_segmentation_answers_through_the_sdk(stack) -> None:
+    scene = make_tabletop_scene(2, seed=12)
+    with sdk.Client(stack.gateway_url, timeout=120) as client:
+        result = client.recognize(scene.points, viewpoint=scene.viewpoint, segmentation="network")
+    assert len(result.objects) == 2
+    for obj in result.objects:
+        ids = scene.object_ids[obj.point_indices]
+        assert (ids == np.bincount(ids + 1).argmax() - 1).mean() > 0.95
+        assert 1 <= len(obj.parts) <= 3
+
+
+@pytest.mark.parametrize("name", ["sqnet_cpu", "dsqnet_cpu", "dsqnet_plus_cpu", "segnet_cpu"])
+def test_shipped_model_dirs_resolve_to_the_repository(name: str) -> None:
+    assert default_model_dir(name).parts[-2:] == ("models", name)
+    for f in ("model.pt", "config.toml", "MODEL_CARD.md"):
+        assert (Path(default_model_dir(name)) / f).is_file()

@@ -183,8 +183,46 @@ def graph_features(x: torch.Tensor, k: int) -> torch.Tensor:
     return torch.cat([nb - centre, centre], -1).permute(0, 3, 1, 2).contiguous()
 
 
+class _NeighbourStats(torch.autograd.Function):
+    """Per row of ``p (M, C)``: max, min, sum and sum of squares over the rows ``idx (M, k)``.
+
+    The ``(M, k, C)`` neighbour tensor is never built: each of the ``k`` neighbour columns is
+    gathered, folded into the four running results and dropped (forward), and gathered again to
+    scatter its share of the gradient (backward; a tie for the max or min passes the gradient to
+    every tied neighbour, which only exact duplicates can cause).
+    """
+
+    @staticmethod
+    def forward(ctx, p: torch.Tensor, idx: torch.Tensor):
+        v = p[idx[:, 0]]
+        mx, mn, s1, s2 = v.clone(), v.clone(), v.clone(), v * v
+        for j in range(1, idx.shape[1]):
+            v = p[idx[:, j]]
+            torch.maximum(mx, v, out=mx)
+            torch.minimum(mn, v, out=mn)
+            s1 += v
+            s2.addcmul_(v, v)
+        ctx.save_for_backward(p, idx, mx, mn)
+        return mx, mn, s1, s2
+
+    @staticmethod
+    def backward(ctx, g_mx, g_mn, g_s1, g_s2):
+        p, idx, mx, mn = ctx.saved_tensors
+        g = torch.zeros_like(p)
+        g2 = 2 * g_s2
+        for j in range(idx.shape[1]):
+            rows = idx[:, j]
+            v = p[rows]
+            c = g_s1 + g2 * v
+            c += g_mx * (v == mx)
+            c += g_mn * (v == mn)
+            g.index_add_(0, rows, c)
+        return g, None
+
+
 class EdgeConv(nn.Module):
-    """``max_j h([x_j - x_i, x_i])`` over the dynamic k-NN graph of the layer's input [72]."""
+    """``max_j h([x_j - x_i, x_i])`` over the dynamic k-NN graph of the layer's input [72],
+    ``h`` = 1x1 convolution (no bias), batch norm, leaky ReLU."""
 
     def __init__(self, c_in: int, c_out: int, k: int, slope: float) -> None:
         super().__init__()
@@ -194,36 +232,49 @@ class EdgeConv(nn.Module):
         )
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """``(B, C_in, N) -> (B, C_out, N)``.
+        """``(B, C_in, N) -> (B, C_out, N)``, the same numbers as ``mlp(graph_features(x))``
+        max-pooled over the neighbours, computed without the ``(B, N, k, C)`` edge tensor:
 
-        The 1x1 convolution is linear and bias-free, so ``W [x_j - x_i, x_i] = W_a x_j +
-        (W_b - W_a) x_i``: both terms are computed per point and only the ``C_out``-wide result
-        is gathered over the k-NN graph (same numbers as ``mlp(graph_features(x))``, about 2.4x
-        faster on a CPU because the ``(B, 2 C_in, N, k)`` edge tensor is never built)."""
+        - the convolution is linear and bias-free, so the edge feature is
+          ``e_ij = W [x_j - x_i, x_i] = p_j + q_i`` with ``p = W_a x``, ``q = (W_b - W_a) x``
+          computed per point;
+        - batch norm is a per-channel affine map and leaky ReLU is increasing, so the max over
+          ``j`` of ``lrelu(bn(e_ij))`` is ``lrelu(bn(q_i + max_j p_j))`` where the channel's
+          scale ``gamma / sigma`` is >= 0 and the same with ``min_j p_j`` where it is < 0;
+        - the batch statistics over all edges follow from ``sum_j p_j`` and ``sum_j p_j^2``.
+
+        About 2x faster per training step on a CPU than building the edge tensor (a unit test
+        checks values, gradients and running statistics against that form)."""
         b, c, n = x.shape
         k = min(self.k, n)
         conv, bn, act = self.mlp
         w = conv.weight.view(conv.out_channels, 2 * c)
         w_nb, w_c = w[:, :c], w[:, c:]
         xt = x.transpose(1, 2)  # (B, N, C_in)
-        p = xt @ w_nb.T  # (B, N, C_out)
-        q = xt @ (w_c - w_nb).T
-        o = p.shape[-1]
+        p = (xt @ w_nb.T).reshape(b * n, -1)
+        q = (xt @ (w_c - w_nb).T).reshape(b * n, -1)
         base = torch.arange(b, device=x.device).view(b, 1, 1) * n
-        nb = p.reshape(b * n, o)[(knn(x, k) + base).reshape(-1)].view(b, n, k, o)
-        edge = (nb + q.unsqueeze(2)).reshape(-1, o)
-        y = F.batch_norm(
-            edge,
-            bn.running_mean,
-            bn.running_var,
-            bn.weight,
-            bn.bias,
-            bn.training or not bn.track_running_stats,
-            bn.momentum,
-            bn.eps,
-        )
-        y = F.leaky_relu(y, act.negative_slope).view(b, n, k, o)
-        return y.max(2).values.transpose(1, 2)  # max() backward scatters; amax() masks
+        idx = (knn(x, k) + base).reshape(b * n, k)
+        mx, mn, s1, s2 = _NeighbourStats.apply(p, idx)
+        if bn.training or not bn.track_running_stats:
+            cnt = b * n * k
+            s1d, qd = s1.double(), q.double()
+            mean = (s1d.sum(0) + k * qd.sum(0)) / cnt
+            ex2 = (s2.double().sum(0) + 2 * (qd * s1d).sum(0) + k * (qd * qd).sum(0)) / cnt
+            var = (ex2 - mean * mean).clamp_min(0)
+            if bn.training and bn.track_running_stats:
+                with torch.no_grad():
+                    m = bn.momentum
+                    bn.running_mean.mul_(1 - m).add_(m * mean.to(p.dtype))
+                    bn.running_var.mul_(1 - m).add_(m * var.to(p.dtype) * cnt / max(cnt - 1, 1))
+                    bn.num_batches_tracked += 1
+            mean, var = mean.to(p.dtype), var.to(p.dtype)
+        else:
+            mean, var = bn.running_mean, bn.running_var
+        scale = bn.weight / torch.sqrt(var + bn.eps)
+        edge = torch.where(scale >= 0, mx, mn) + q
+        y = F.leaky_relu((edge - mean) * scale + bn.bias, act.negative_slope)
+        return y.view(b, n, -1).transpose(1, 2)
 
 
 class DGCNNEncoder(nn.Module):

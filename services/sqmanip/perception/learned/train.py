@@ -33,13 +33,28 @@ from .config import (
     to_toml,
 )
 from .datasets import ObjectPartDataset, PrimitiveDataset, SegBatch, SegmentationDataset, SQBatch
-from .losses import dsq_loss, matched_accuracy, segmentation_loss
+from .losses import (
+    dsq_loss,
+    matched_accuracy,
+    segmentation_loss,
+    shape_parameter_loss,
+    surface_to_points,
+)
 from .models import build_model, count_parameters
 
-__all__ = ["add_cli", "build_datasets", "evaluate", "save_model_dir", "train", "train_step"]
+__all__ = [
+    "add_cli",
+    "build_datasets",
+    "evaluate",
+    "load_initial_weights",
+    "save_model_dir",
+    "train",
+    "train_step",
+]
 
 log = logging.getLogger(__name__)
-LOG_FIELDS = ("step", "epoch", "elapsed_s", "split", "loss", "dist", "z_reg", "acc", "iou")
+LOG_FIELDS = ("step", "epoch", "elapsed_s", "split", "loss", "dist", "z_reg", "surface", "shape",
+              "acc", "iou")  # fmt: skip
 
 
 def _device(cfg: TrainConfig) -> torch.device:
@@ -70,11 +85,67 @@ def build_datasets(name: str, data: str | Path, mcfg: ModelConfig, tcfg: TrainCo
     return train_ds, test_ds
 
 
+def load_initial_weights(model: nn.Module, source: str | Path) -> list[str]:
+    """Start ``model`` from the weights in ``source`` (``model.pt`` or its directory).
+
+    Every tensor must match in shape, except a first layer that reads more input channels than
+    the source's (DSQNet+ from DSQNet, 3.6.2: 4-d points instead of 3-d): its weights on the
+    source's channels are copied and those on the new channels start at zero, so the network
+    begins as the source network that ignores the segment channel. Returns the names of the
+    tensors widened that way; any other mismatch is a ``ValueError`` naming the tensor.
+    """
+    src = Path(source)
+    src = src / "model.pt" if src.is_dir() else src
+    if not src.is_file():
+        raise FileNotFoundError(f"no weights at {src}")
+    theirs = torch.load(src, map_location="cpu", weights_only=True)
+    ours = model.state_dict()
+    if set(theirs) != set(ours):
+        missing, extra = sorted(set(ours) - set(theirs)), sorted(set(theirs) - set(ours))
+        raise ValueError(f"{src} does not fit this model: missing {missing}, unexpected {extra}")
+    widened = []
+    first = "encoder.edges.0.mlp.0.weight"  # EdgeConv weight over [x_j - x_i, x_i]
+    for name, t in theirs.items():
+        if t.shape == ours[name].shape:
+            ours[name] = t
+        elif name == first and t.shape[1] < ours[name].shape[1] and t.shape[1] % 2 == 0:
+            c_old, c_new = t.shape[1] // 2, ours[name].shape[1] // 2
+            w = torch.zeros_like(ours[name])
+            w[:, :c_old] = t[:, :c_old]
+            w[:, c_new : c_new + c_old] = t[:, c_old:]
+            ours[name] = w
+            widened.append(name)
+        else:
+            raise ValueError(
+                f"{src}: tensor {name} has shape {tuple(t.shape)}, this model "
+                f"{tuple(ours[name].shape)}"
+            )
+    model.load_state_dict(ours)
+    return widened
+
+
 def _loss(model: nn.Module, batch, tcfg: TrainConfig):
     if isinstance(batch, SegBatch):
         return segmentation_loss(model(batch.x), batch.labels)
     pred = model(batch.x)
-    return dsq_loss(pred, batch.gt, batch.gt_z, z_weight=tcfg.z_weight)
+    loss, logs = dsq_loss(pred, batch.gt, batch.gt_z, z_weight=tcfg.z_weight)
+    if tcfg.surface_weight > 0:
+        term = surface_to_points(pred, batch.gt)
+        loss = loss + tcfg.surface_weight * term
+        logs["surface"] = float(term.detach())
+    if tcfg.shape_weight > 0:
+        gt_rotation = batch.frame.rotation.transpose(1, 2) @ batch.gt_pose[:, :3, :3]
+        term = shape_parameter_loss(
+            pred,
+            batch.frame.params_to_normalized(batch.gt_params),
+            gt_rotation,
+            deformable=model.config.deformable,
+            size_weight=tcfg.size_weight,
+        )
+        loss = loss + tcfg.shape_weight * term
+        logs["shape"] = float(term.detach())
+    logs["loss"] = float(loss.detach())
+    return loss, logs
 
 
 def train_step(
@@ -181,11 +252,13 @@ def train(
     max_minutes: float | None = None,
     progress: bool = True,
     datasets=None,
+    init_from: str | Path | None = None,
 ) -> dict:
     """Train ``name`` and write checkpoints, ``model.pt``, ``config.toml`` and ``log.csv``.
 
     Returns ``{"steps", "train", "test", "parameters", "minutes"}`` (last train-window and final
-    test metrics). ``datasets`` may pass prebuilt ``(train, test)`` datasets.
+    test metrics). ``datasets`` may pass prebuilt ``(train, test)`` datasets. ``init_from``: a
+    fresh run starts from those weights (:func:`load_initial_weights`); a resumed one ignores it.
     """
     from tqdm import tqdm
 
@@ -207,12 +280,17 @@ def train(
         opt.load_state_dict(ckpt["optimizer"])
         step = int(ckpt["step"])
         log.info("resumed %s at step %d", name, step)
+    elif init_from is not None:
+        widened = load_initial_weights(model, init_from)
+        log.info("initialised %s from %s (widened: %s)", name, init_from, widened or "none")
     csv_log = _CsvLog(out / "log.csv", append=resume and step > 0)
     n = len(train_ds)
     per_epoch = max(1, n // tcfg.batch_size)
     total = min(tcfg.max_steps, tcfg.epochs * per_epoch)
     info = {"model": name, "data": str(data), "train_items": n, "test_items": len(test_ds),
             "parameters": count_parameters(model)}  # fmt: skip
+    if init_from is not None:
+        info["init_from"] = str(init_from)
 
     def save() -> None:
         torch.save(
@@ -283,7 +361,7 @@ def _run_cli(args: argparse.Namespace) -> int:
     if over:
         tcfg = dataclasses.replace(tcfg, **over)
     res = train(args.model, mcfg, tcfg, args.data, args.out, resume=args.resume,
-                max_minutes=args.max_minutes)  # fmt: skip
+                max_minutes=args.max_minutes, init_from=args.init_from)  # fmt: skip
     print({k: (round(v, 5) if isinstance(v, float) else v) for k, v in res.items()})
     return 0
 
@@ -305,6 +383,9 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
         p.add_argument("--out", required=True, help="output directory")
         p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
         p.add_argument("--max-minutes", type=float, default=None, help="wall-clock budget")
+        p.add_argument("--init-from", default=None, metavar="PATH",
+                       help="fresh run: start from these weights (model.pt or its directory); "
+                            "DSQNet+ can start from a DSQNet")  # fmt: skip
         p.add_argument("--seed", type=int, default=None)
         p.add_argument("--batch-size", type=int, default=None)
         p.add_argument("--max-steps", type=int, default=None)

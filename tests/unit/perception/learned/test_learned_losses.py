@@ -1,11 +1,21 @@
-"""Losses: DSQNet loss (3.3.6) and the Hungarian-matched segmentation loss (A.2)."""
+"""Losses: DSQNet loss (3.3.6), the CPU preset's extra terms and the Hungarian-matched
+segmentation loss (A.2)."""
 
 from __future__ import annotations
 
+import dataclasses
+
+import pytest
 import torch
 from sqmanip.geometry.sampling import sample_surface
-from sqmanip.geometry.transforms import quat_normalize
-from sqmanip.perception.learned.losses import dsq_loss, hungarian_match, segmentation_loss
+from sqmanip.geometry.transforms import quat_normalize, quat_to_matrix
+from sqmanip.perception.learned.losses import (
+    dsq_loss,
+    hungarian_match,
+    segmentation_loss,
+    shape_parameter_loss,
+    surface_to_points,
+)
 from sqmanip.perception.learned.models import SQPrediction
 
 
@@ -50,6 +60,74 @@ def test_dsq_loss_has_finite_gradients():
     loss, _ = dsq_loss(pred, torch.randn(1, 50, 3) * 0.3, torch.tensor([[0.0, 0.0, 1.0]]))
     loss.backward()
     assert torch.isfinite(pred.size.grad).all() and pred.size.grad.abs().sum() > 0
+
+
+def _surface_points(pred: SQPrediction, n: int = 1500) -> torch.Tensor:
+    pts, _ = sample_surface(pred.params().double(), n, generator=0)
+    T = pred.pose().double()
+    return (pts @ T[:, :3, :3].transpose(1, 2) + T[:, None, :3, 3]).float()
+
+
+def test_surface_term_punishes_predicted_surface_far_from_the_points():
+    """(3.3.5) cannot see a prediction that is too long; the surface term can."""
+    pred = _prediction()
+    gt = _surface_points(pred)
+    assert float(surface_to_points(pred, gt)) < 1e-4
+    longer = dataclasses.replace(pred, size=pred.size * torch.tensor([1.0, 1.0, 2.0]))
+    assert float(surface_to_points(longer, gt)) > 30 * float(surface_to_points(pred, gt))
+
+
+def test_shape_term_is_zero_for_the_truth_and_blind_to_a_flipped_z_axis():
+    pred = _prediction()
+    gt_params = pred.params().clone()
+    R = pred.pose()[:, :3, :3]
+    assert float(shape_parameter_loss(pred, gt_params, R)) < 1e-10
+    # the same tapered, bent shape described upside down: z -> -z (a turn about x), taper -k,
+    # bending direction mirrored in the new frame (y -> -y)
+    flip = torch.diag(torch.tensor([1.0, -1.0, -1.0]))
+    a = gt_params[:, 7]
+    upside_down = gt_params.clone()
+    upside_down[:, 5] = -gt_params[:, 5]
+    upside_down[:, 7] = -a
+    assert float(shape_parameter_loss(pred, upside_down, R @ flip)) < 1e-10
+    wrong = gt_params.clone()
+    wrong[:, 3] += 0.3
+    assert float(shape_parameter_loss(pred, wrong, R)) > 0.05
+
+
+def test_shape_term_penalises_the_wrong_bending_direction():
+    pred = _prediction()
+    gt_params = pred.params().clone()
+    R = pred.pose()[:, :3, :3]
+    gt_params[:, 7] += torch.pi
+    assert float(shape_parameter_loss(pred, gt_params, R)) > 1.9
+    assert float(shape_parameter_loss(pred, gt_params, R, deformable=False)) < 1e-10
+
+
+def test_shape_term_ignores_exponents_when_the_z_axes_are_perpendicular():
+    pred = _prediction()
+    gt_params = pred.params().clone()
+    gt_params[:, 3:5] = torch.tensor([1.5, 0.2])
+    turn = quat_to_matrix(torch.tensor([0.7071068, 0.0, 0.0, 0.7071068]))  # 90 deg about x
+    R = pred.pose()[:, :3, :3] @ turn
+    assert float(shape_parameter_loss(pred, gt_params, R, deformable=False)) < 1e-10
+
+
+def test_shape_term_sizes_ignore_a_quarter_turn_about_z_and_see_a_wrong_length():
+    pred = _prediction()
+    gt_params = pred.params().clone()
+    R = pred.pose()[:, :3, :3]
+    quarter = torch.tensor([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    turned = gt_params.clone()
+    turned[:, [0, 1]] = gt_params[:, [1, 0]]  # a1 <-> a2: the same shape turned by 90 degrees
+    turned[:, 7] -= torch.pi / 2
+    assert float(shape_parameter_loss(pred, turned, R @ quarter, size_weight=10.0)) < 1e-10
+    longer = gt_params.clone()
+    longer[:, 2] += 0.1
+    assert float(shape_parameter_loss(pred, longer, R)) < 1e-10  # sizes off by default
+    assert float(shape_parameter_loss(pred, longer, R, size_weight=10.0)) == pytest.approx(
+        0.1, rel=1e-5
+    )
 
 
 def test_hungarian_loss_is_invariant_to_label_permutation():

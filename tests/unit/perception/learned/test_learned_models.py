@@ -2,12 +2,20 @@
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import pytest
 import torch
 from sqmanip.geometry.transforms import pose_from_pq, quat_normalize
 from sqmanip.perception.learned.config import load_preset, model_config
-from sqmanip.perception.learned.models import PCANormalizer, build_model, count_parameters
+from sqmanip.perception.learned.models import (
+    EdgeConv,
+    PCANormalizer,
+    build_model,
+    count_parameters,
+    graph_features,
+)
 
 TINY = dict(k=6, edge_widths=(16, 16, 16, 32), global_dim=64, head_widths=(32, 16))
 
@@ -99,6 +107,32 @@ def test_dsqnet_is_permutation_invariant():
     a, b = net(x), net(x[:, perm])
     torch.testing.assert_close(a.params(), b.params(), atol=1e-5, rtol=1e-5)
     torch.testing.assert_close(a.pose(), b.pose(), atol=1e-5, rtol=1e-5)
+
+
+@pytest.mark.parametrize("c_in,c_out", [(3, 8), (8, 16)])
+def test_edgeconv_matches_the_edge_tensor_form(c_in, c_out):
+    """The fused EdgeConv gives the values, gradients and running statistics of
+    ``max_j lrelu(bn(conv([x_j - x_i, x_i])))`` built on the whole edge tensor, for batch-norm
+    scales of both signs, in training and in eval mode."""
+    torch.manual_seed(0)
+    layer = EdgeConv(c_in, c_out, k=5, slope=0.2)
+    with torch.no_grad():
+        layer.mlp[1].weight.uniform_(-1.0, 1.0)
+        layer.mlp[1].bias.uniform_(-0.5, 0.5)
+    ref = copy.deepcopy(layer)
+    x = torch.randn(3, c_in, 40, dtype=torch.float64, requires_grad=True)
+    layer.double(), ref.double()
+    y = layer(x)
+    y_ref = ref.mlp(graph_features(x, 5)).amax(-1)
+    torch.testing.assert_close(y, y_ref)
+    g = torch.autograd.grad((y * y).sum(), [x, *layer.parameters()])
+    g_ref = torch.autograd.grad((y_ref * y_ref).sum(), [x, *ref.parameters()])
+    for a, b in zip(g, g_ref, strict=True):
+        torch.testing.assert_close(a, b)
+    torch.testing.assert_close(layer.mlp[1].running_mean, ref.mlp[1].running_mean)
+    torch.testing.assert_close(layer.mlp[1].running_var, ref.mlp[1].running_var)
+    layer.eval(), ref.eval()
+    torch.testing.assert_close(layer(x), ref.mlp(graph_features(x, 5)).amax(-1))
 
 
 def test_factory_errors_list_the_models():

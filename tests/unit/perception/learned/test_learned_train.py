@@ -11,7 +11,13 @@ import torch
 from sqmanip.geometry.transforms import pose_from_pq, quat_normalize
 from sqmanip.perception.learned.config import TrainConfig, model_config
 from sqmanip.perception.learned.infer import NetworkRecognizer, NetworkSegmenter
-from sqmanip.perception.learned.train import build_datasets, train
+from sqmanip.perception.learned.models import build_model
+from sqmanip.perception.learned.train import (
+    build_datasets,
+    load_initial_weights,
+    save_model_dir,
+    train,
+)
 
 TINY = dict(k=6, edge_widths=(16, 16, 16, 32), global_dim=64, head_widths=(32, 16))
 TCFG = TrainConfig(batch_size=4, n_gt=64, max_steps=24, eval_every=1000, eval_iou_items=2,
@@ -39,6 +45,39 @@ def test_tiny_dsqnet_run_lowers_its_loss(dsqnet_run):
     assert 0.0 <= res["test"]["iou"] <= 1.0
     ckpt = torch.load(out / "checkpoint.pt", weights_only=True)
     assert ckpt["step"] == 24 and "optimizer" in ckpt
+
+
+def test_the_extra_loss_terms_are_logged_and_trained(tiny_data, tmp_path):
+    """The cpu preset's surface, shape and size terms (learned/losses.py) go into the loss."""
+    extra = dataclasses.replace(TCFG, surface_weight=1.0, shape_weight=0.1, size_weight=10.0)
+    mcfg = model_config("dsqnet", n_points=300, **TINY)
+    res = train("dsqnet", mcfg, extra, tiny_data, tmp_path, progress=False)
+    with (tmp_path / "log.csv").open() as fh:
+        rows = [r for r in csv.DictReader(fh) if r["split"] == "train"]
+    first, last = rows[0], rows[-1]
+    assert float(first["surface"]) > 0 and float(first["shape"]) > 0
+    assert float(last["loss"]) < float(first["loss"])
+    assert float(last["shape"]) < float(first["shape"])
+    assert res["test"]["shape"] > 0
+
+
+def test_dsqnet_plus_starts_as_the_dsqnet_it_is_initialised_from(tmp_path):
+    """The segment channel's new weights start at zero: on a cloud that is all segment, the
+    initialised DSQNet+ predicts what the DSQNet does."""
+    torch.manual_seed(0)
+    src = build_model("dsqnet", model_config("dsqnet", n_points=64, **TINY)).eval()
+    save_model_dir(tmp_path / "src", src, src.config, TCFG, {})
+    plus = build_model("dsqnet_plus", model_config("dsqnet_plus", n_points=64, **TINY)).eval()
+    assert load_initial_weights(plus, tmp_path / "src") == ["encoder.edges.0.mlp.0.weight"]
+    x = torch.randn(2, 64, 3)
+    a, b = src(x), plus(torch.cat([x, torch.ones(2, 64, 1)], -1))
+    torch.testing.assert_close(a.params(), b.params())
+    torch.testing.assert_close(a.pose(), b.pose())
+    wide = build_model("dsqnet", model_config("dsqnet", n_points=64, **{**TINY, "global_dim": 32}))
+    with pytest.raises(ValueError, match="shape"):
+        load_initial_weights(wide, tmp_path / "src")
+    with pytest.raises(ValueError, match="does not fit"):
+        load_initial_weights(build_model("sqnet", model_config("sqnet", **TINY)), tmp_path / "src")
 
 
 def test_resume_reproduces_an_uninterrupted_run(tiny_data, tmp_path, dsqnet_run):
