@@ -8,11 +8,10 @@ the ground truth, on single-view partial clouds of one primitive on a table (A.1
 torus is not in this set), for: the amodal optimisation fitter (``method="optimization"``), the
 plain radial-distance fit without amodal terms (the thesis' DSQOpt), and the PCA bounding box
 (MVBB, 3.5.2), plus the upright MVBB that reaches down to the plane, and the shipped DSQNet
-(``method="network"``, ``models/dsqnet_cpu``) and its refinement by the fitter (``"hybrid"``). The
-object's points are
-given as labels so segmentation errors do not enter (as in 3.5.1). The thesis' numbers are
-printed beside ours: Table 3.2 (DSQOpt / DSQNet, primitive dataset) and Table 3.3 (MVBB, object
-dataset).
+(``method="network"``, ``models/dsqnet_cpu``) and its refinement by the fitter (``"hybrid"``).
+The object's points are given as labels so segmentation errors do not enter (as in 3.5.1). The
+thesis' numbers are printed beside ours: Table 3.2 (DSQOpt / DSQNet, primitive dataset) and
+Table 3.3 (MVBB, object dataset).
 
 (b) Latency of a 40,000-point tabletop cloud with 4 objects (segmentation by clustering): per
 stage (``timings_ms``) and end to end, in-process (``Recognizer.recognize``) and through the

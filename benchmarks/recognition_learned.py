@@ -188,9 +188,8 @@ def evaluate(
     for it in items:
         shape = int(data["shape_idx"][it])
         tname = OBJECT_TYPES[int(data["type_id"][shape])]
-        labels = data["labels"][it]
-        if segmenter is not None:
-            labels = segmenter.segment(data["partial"][it].astype(np.float64))
+        cloud = data["partial"][it].astype(np.float64)
+        labels = data["labels"][it] if segmenter is None else segmenter.segment(cloud)
         segs = _segments(data["partial"][it], labels, rng)
         if not segs:
             continue
@@ -198,7 +197,7 @@ def evaluate(
         gt = _gt_parts(data, shape)
         for name in methods.names:
             t0, c0 = time.perf_counter(), time.process_time()
-            parts = methods.run(name, segs, eye, data["partial"][it].astype(np.float64))
+            parts = methods.run(name, segs, eye, cloud)
             ms, cpu_ms = 1e3 * (time.perf_counter() - t0), 1e3 * (time.process_time() - c0)
             iou = volume_iou(parts, gt, n=iou_n, generator=it)
             rec = out.setdefault(tname, {}).setdefault(name, {"iou": [], "ms": [], "cpu_ms": []})

@@ -99,6 +99,7 @@ def shape_parameter_loss(
     *,
     deformable: bool = True,
     size_weight: float = 0.0,
+    bend_bounds: tuple[float, float] = (0.01, 0.75),
 ) -> torch.Tensor:
     """Squared errors of the parameters that a choice of frame leaves unchanged (scalar).
 
@@ -109,7 +110,8 @@ def shape_parameter_loss(
     - exponents ``e`` and taper ``k`` (its sign follows the predicted z axis: a cone upside down
       is the same cone with ``-k``), weighted by ``(z . z_g)^2`` since both are defined along
       the z axis;
-    - ``b' = max(a1, a2) b`` against the ground truth's clamped to the bounds of Table 3.1;
+    - ``b' = max(a1, a2) b`` against the ground truth's clamped to ``bend_bounds`` (the
+      model's output bounds, Table 3.1);
     - for bent shapes (``b' > BENT``), ``1 - cos`` of the angle between the predicted and the
       true bending direction ``R (cos alpha, sin alpha, 0)`` (unchanged by the z flip);
     - ``size_weight`` times the squared errors of ``a3`` and of the sorted pair ``(a1, a2)``
@@ -133,7 +135,7 @@ def shape_parameter_loss(
     if deformable:
         b_gt = gt_params[:, :2].amax(-1) * gt_params[:, 6]
         b_pred = pred.size[:, :2].amax(-1) * pred.bend
-        loss = loss + (b_pred - b_gt.clamp(0.01, 0.75)) ** 2
+        loss = loss + (b_pred - b_gt.clamp(*bend_bounds)) ** 2
         d_pred = (R[:, :, :2] @ pred.bend_direction.unsqueeze(-1)).squeeze(-1)
         c, s = torch.cos(gt_params[:, 7]), torch.sin(gt_params[:, 7])
         d_gt = gt_rotation[:, :, 0] * c[:, None] + gt_rotation[:, :, 1] * s[:, None]

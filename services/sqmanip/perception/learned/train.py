@@ -141,6 +141,7 @@ def _loss(model: nn.Module, batch, tcfg: TrainConfig):
             gt_rotation,
             deformable=model.config.deformable,
             size_weight=tcfg.size_weight,
+            bend_bounds=model.config.bend_bounds,
         )
         loss = loss + tcfg.shape_weight * term
         logs["shape"] = float(term.detach())
