@@ -51,6 +51,12 @@ class SearchConfig:
     seen_margin: float = 0.02
     """A pixel sees the target when its depth with the target is this much (m) nearer than
     without: differences below it are left to the MSE test (recognition error tolerance) (ours)."""
+    seen_fraction: float = 0.25
+    """The episode runner remembers a pose as empty once the camera's own depth image showed
+    the target's place there in plain view on this share of its footprint
+    (:meth:`.existence.ExistenceModel.seen_empty`), and ``f`` stays 0 there (the non-increasing
+    uncertainty of 5.4.2 across real steps, ours). Above 1 nothing is remembered: each step's
+    ``f`` comes from its own observation only."""
     n_target_points: int = 512
     """n_o target surface points for f_c (C.2.10)."""
     fc_shrink: float = 0.005
@@ -69,10 +75,13 @@ class SearchConfig:
     """n_gr points on the afterimage of the gripper and links 6-7 (C.3.11)."""
     grasp_yaws_deg: tuple[float, ...] = (-80.0, -60.0, -40.0, -20.0, 0.0, 20.0, 40.0, 60.0, 80.0)
     """Approach yaws about the vertical for a round target (a cylinder can be grasped from any
-    side, 5.6.3); with ``grasp_heights`` this gives N_gr = 27 (thesis: 10 to 30). The side
-    yaws matter on a crowded shelf: a target hemmed in front is often reachable only past a
-    neighbour's flank. Against +-40 degrees and 4 heights (N_gr = 20), R-Search-for-Grasp on
-    the saved seed-300/500 scenarios went from 64 to 73 of 108 (11 episodes won, 2 lost)."""
+    side, 5.6.3). The C.3 rule gives each yaw's facing side and, within ``facing_angle_deg``,
+    the side 90 degrees from it, so these nine give 17 approach directions 10 degrees apart;
+    with ``grasp_heights`` N_gr = 51, above the thesis' 10 to 30 (f and g over the grid still
+    take about 6 and 10 ms, ``benchmarks.search_functions``). The side yaws matter on a
+    crowded shelf: a target hemmed in front is often reachable only past a neighbour's flank.
+    Against +-40 degrees and 4 heights (7 directions, N_gr = 28), R-Search-for-Grasp on the
+    saved seed-300/500 scenarios went from 64 to 73 of 108 (11 episodes won, 2 lost)."""
     grasp_heights: int = 3
     floor_clearance: float = 0.02
     """Target grasps whose open gripper comes closer than this to the floor are dropped, and
@@ -149,6 +158,10 @@ class SearchConfig:
             raise ValidationError(f"risk_weight must be finite and >= 0, got {self.risk_weight!r}")
         if not (math.isfinite(self.seen_margin) and self.seen_margin >= 0):
             raise ValidationError(f"seen_margin must be finite and >= 0, got {self.seen_margin!r}")
+        if not (math.isfinite(self.seen_fraction) and self.seen_fraction > 0):
+            raise ValidationError(
+                f"seen_fraction must be finite and > 0, got {self.seen_fraction!r}"
+            )
         if not (0.0 < self.render_scale <= 1.0):
             raise ValidationError(f"render_scale must be in (0, 1], got {self.render_scale!r}")
         if self.n_gripper_points < 16:

@@ -313,6 +313,29 @@ class ExistenceModel:
         out = depth_condition(pose_i, d0, d_t, self.n_foot, self.config, self.pixel_area)
         return out & mask
 
+    def seen_empty(self, depth: np.ndarray) -> torch.Tensor:
+        """``(P,)`` poses where the target would have stood in plain view of the camera's depth
+        image ``depth (H, W)`` (metres along the optical axis at the camera's full resolution,
+        0 where nothing was hit): on at least ``seen_fraction`` of its footprint the observed
+        surface lies more than ``seen_margin`` behind it. Measured on the image itself, not on
+        the recognized shapes, so recognition error cannot rule out where the target is: at its
+        true pose the image shows the target or something in front of it (ours)."""
+        cam, cfg = self.camera, self.config
+        depth = np.asarray(depth, np.float64)
+        H, W = depth.shape
+        s = cam.width / W
+        u = np.clip(np.round((np.arange(cam.width) + 0.5) / s - 0.5).astype(int), 0, W - 1)
+        v = np.clip(np.round((np.arange(cam.height) + 0.5) / s - 0.5).astype(int), 0, H - 1)
+        z = torch.as_tensor(depth[np.ix_(v, u)].reshape(-1), dtype=self.dtype)
+        # z-depth to distance along each render pixel's unit ray
+        optical_z = torch.as_tensor(cam.pose[:3, 2], dtype=self.dtype)
+        t_obs = z / (self._dirs @ optical_z).clamp_min(1e-6)
+        t_obs = torch.where(z > 0, t_obs, torch.full_like(t_obs, cfg.t_far))
+        fp = self._foot
+        behind = (t_obs[fp.pixel] - fp.depth > cfg.seen_margin).to(self.dtype)
+        n_behind = torch.zeros(len(self.grid), dtype=self.dtype).index_add_(0, fp.pose, behind)
+        return (self.n_foot > 0) & (n_behind >= cfg.seen_fraction * self.n_foot)
+
     def evaluate(
         self,
         scene: SceneState,

@@ -4,7 +4,8 @@ Candidate grasps of the target come from the rule-based generator of
 :mod:`sqmanip.grasping.rule_based` with the C.3 preset: side grasps pitched 20 deg towards the
 floor, antipodal width <= 7.5 cm, approaching into the shelf (+x). A cylinder can be grasped from
 any side (5.6.3), so the generator runs on the target turned by a few yaws (``grasp_yaws_deg``)
-and ``grasp_heights`` heights each: ``N_gr = 27`` by default (thesis: 10 to 30).
+and ``grasp_heights`` heights each: ``N_gr = 51`` by default, 17 approach directions 10 deg
+apart at three heights (thesis: 10 to 30; see ``SearchConfig.grasp_yaws_deg``).
 
 For a grasp ``T_k`` the robot approaches 30 cm along the gripper z axis; the "afterimage" of the
 open gripper and links 6-7 over that approach is ``n_gr = 2048`` points

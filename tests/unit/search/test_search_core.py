@@ -111,6 +111,32 @@ def test_visible_target_gives_one_hot_f(models):
     assert f.sum() == 1 and f[i] == 1
 
 
+def z_depth(em, objects):
+    """Camera z-depth image of superquadrics at the model's render resolution."""
+    from sqmanip.geometry.render import render_depth
+
+    scene = SceneState.from_objects(objects)
+    t = render_depth(scene.params, scene.poses, em.camera)
+    _, dirs = em.camera.rays(t.dtype)
+    return (t * (dirs @ torch.as_tensor(em.camera.pose[:3, 2], dtype=t.dtype))).numpy()
+
+
+def test_seen_empty_is_measured_on_the_depth_image_and_never_where_the_target_stands(models):
+    """The episode's memory of poses seen empty comes from the camera's own depth image: in
+    plain view in front of the back wall yes, behind a box no; and where the target actually
+    stands the image shows the target, so its pose is never remembered as empty."""
+    grid, em, _ = models
+    wall = box(0.87, 0.0, 0.02, 0.7, 0.4)
+    front = box(0.60, -0.1, 0.08, 0.2, 0.25)
+    seen = em.seen_empty(z_depth(em, [wall, front]))
+    assert seen[idx_near(grid, 0.78, -0.1)] == 0  # behind the box
+    i = idx_near(grid, 0.72, 0.2)
+    assert seen[i] == 1  # in plain view
+    target = Superquadric(TARGET.size, TARGET.shape, grid.poses[i].double().numpy())
+    assert em.seen_empty(z_depth(em, [wall, front, target]))[i] == 0
+    assert em.seen_empty(np.zeros((em.camera.height, em.camera.width)))[i] == 1  # nothing hit
+
+
 def test_fast_existence_matches_reference_render(models):
     grid, em, _ = models
     scene = SceneState.from_objects(
@@ -358,3 +384,13 @@ def test_a_seen_target_is_never_in_the_way_of_a_pushed_object():
         d = planner.decide(objs, TARGET, SHELF, SHELF.camera(), True, target_pose=pose,
                            rng=seed, grasp_check=BlockedBy(0), reject=refused)  # fmt: skip
         assert d.kind == "push" and d.params["object"] == 1, (seed, d.kind, d.params)
+
+
+def test_poses_near_an_executed_push_are_forgotten():
+    """After a push the runner forgets what it saw empty along the push's path (the target
+    may have been shoved there), and only there."""
+    from sqmanip.search.episode import _near_push
+
+    xy = torch.tensor([[0.60, 0.00], [0.60, 0.12], [0.60, 0.21], [0.80, 0.05], [0.60, -0.12]])
+    near = _near_push(xy, {"start": [0.60, 0.0, 0.25], "displacement": [0.0, 0.10, 0.0]}, 0.05)
+    assert near.tolist() == [True, True, False, False, False]
