@@ -225,7 +225,9 @@ class SearchPlanner:
                 )
 
         t = time.perf_counter()
-        keep_out = self._keep_out(grid.xy, root.f, target_spec)
+        keep_out = self._keep_out(
+            grid.xy, root.f, target_spec, target_pose if target_visible else None
+        )
         pick_ok = None
         if grasp_check is not None:
             checked: dict[bytes, bool] = {}
@@ -330,7 +332,9 @@ class SearchPlanner:
                 f_prev = m.f
                 if step + 1 == cfg.horizon:
                     break
-                keep_out = self._keep_out(grid.xy, m.f, ev.em.target)
+                keep_out = self._keep_out(
+                    grid.xy, m.f, ev.em.target, target_pose if visible else None
+                )
                 nxt = self._one_action(state, sampler, rng, keep_out)
                 if nxt is None:
                     break
@@ -338,11 +342,17 @@ class SearchPlanner:
             costs[s] = sequence_cost(J, cfg.gamma)
         return costs, grasps
 
-    def _keep_out(self, xy: torch.Tensor, f: torch.Tensor, target: TargetSpec) -> torch.Tensor:
+    def _keep_out(
+        self, xy: torch.Tensor, f: torch.Tensor, target: TargetSpec, seen_at=None
+    ) -> torch.Tensor:
         """``(Q, 3)`` discs ``(x, y, r)`` where the target may stand (``f = 1``), widened by
-        ``keep_out_margin``."""
-        on = f.bool()
+        ``keep_out_margin``; a seen target's (``seen_at``, its pose) is one disc where it
+        stands, not at its nearest grid pose (up to 1.4 cm off)."""
         r = target.horizontal_radius + self.config.keep_out_margin
+        if seen_at is not None:
+            c = torch.as_tensor(np.asarray(seen_at, np.float64)[:2, 3], dtype=xy.dtype)
+            return torch.cat([c, torch.tensor([r], dtype=xy.dtype)])[None]
+        on = f.bool()
         return torch.cat([xy[on], torch.full((int(on.sum()), 1), r, dtype=xy.dtype)], -1)
 
     def feasible(self, a: Action, shelf: ShelfSpec) -> bool:

@@ -717,12 +717,14 @@ class Simulator:
         (both segments checked the same way). From the shelf robot's home the direct line
         to a deep pose swings the arm through the top board (a third of the shelf grasps
         failed only on it); the approach line is the one the planner's C.3 afterimage checks.
-        Deterministic. Raises :class:`PreconditionError` with the first seed's reason when no
-        seed gives such a chain (a deep pose's first IK solution often has the elbow in a board
-        where another clears it)."""
+        Deterministic. Raises :class:`PreconditionError` when no seed gives such a chain: the
+        first seed's reason, or, when an object stopped a seed, that seed's (its ``bodies``
+        name the objects, so a caller knows what to move: the first seed alone often failed
+        on its IK and hid that another seed's arm only needed an object out of the way)."""
         a = self.config.approach_distance
         T_pre, T_lift = offset_along_z(pose, -a), lifted(pose, a)
         first: PreconditionError | None = None
+        blocked: PreconditionError | None = None  # the first seed an object stopped
         tried: list[np.ndarray] = []
         extra = self._grasp_restart + [
             self.kin.clamp(q_start + d) for d in self._grasp_seed_offsets
@@ -747,8 +749,12 @@ class Simulator:
                 )
             except PreconditionError as exc:
                 first = first or exc
+                if blocked is None and any(
+                    b.startswith("object") for b in getattr(exc, "bodies", ())
+                ):
+                    blocked = exc
         assert first is not None
-        raise first
+        raise blocked or first
 
     def _grasp_via(
         self, pose: np.ndarray, q_start: np.ndarray, q_pre: np.ndarray, width: float, objects: bool

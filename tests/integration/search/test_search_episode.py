@@ -150,3 +150,21 @@ def test_grasp_check_names_the_objects_that_block_a_grasp(sim):
     assert (~now).any()
     for ok, named in zip(now, check.last_blockers, strict=True):
         assert named == (frozenset() if ok else frozenset({7}))
+
+
+def test_a_refused_grasp_names_the_object_even_when_its_first_ik_seed_fails(sim):
+    """Deep in the shelf's left corner the first IK seed of some grasps fails on its own and a
+    later seed's arm is stopped by the box in front: the refusal must name the box (what the
+    planner can move), not the first seed's IK error. Every grasp the arm could make on the
+    empty shelf is refused here, and each names the box."""
+    from sqmanip.search.execution import SimGraspCheck
+
+    box = ObjectSpec("box", position=(0.72, 0.29, 0.28), size=(0.09, 0.05, 0.16), name="b")
+    scenario = scenario_from_objects([box], (0.83, 0.22))
+    poses, valid = _target_grasps_in(sim, scenario)
+    check = SimGraspCheck(sim)
+    poses = poses[valid][check(poses[valid], False)]
+    check.object_index = {0: 7}
+    now = check(poses, True)
+    assert len(poses) and not now.any()
+    assert check.last_blockers == [frozenset({7})] * len(poses)

@@ -394,3 +394,18 @@ def test_poses_near_an_executed_push_are_forgotten():
     xy = torch.tensor([[0.60, 0.00], [0.60, 0.12], [0.60, 0.21], [0.80, 0.05], [0.60, -0.12]])
     near = _near_push(xy, {"start": [0.60, 0.0, 0.25], "displacement": [0.0, 0.10, 0.0]}, 0.05)
     assert near.tolist() == [True, True, False, False, False]
+
+
+def test_a_seen_targets_keep_out_disc_stands_where_the_target_stands(models):
+    """Once seen, the target is kept clear of at its observed pose, not at its nearest grid
+    pose (up to half a cell's diagonal off, more than the keep-out margin)."""
+    grid, _, _ = models
+    planner = SearchPlanner(KinematicPushDynamics(), None, CFG)
+    pose = np.eye(4)
+    pose[:3, 3] = (0.713, 0.118, SHELF.bottom_z + TARGET.size[2])
+    f = torch.zeros(len(grid))
+    f[grid.nearest(pose)] = 1.0
+    disc = planner._keep_out(grid.xy, f, TARGET, pose)
+    r = TARGET.horizontal_radius + CFG.keep_out_margin
+    assert torch.allclose(disc, torch.tensor([[0.713, 0.118, r]], dtype=disc.dtype))
+    assert planner._keep_out(grid.xy, f, TARGET).shape == (1, 3)  # hidden: the grid pose
