@@ -38,8 +38,9 @@ the saved seed-300/500 scenarios: 73 -> 77 of 108). An executed push may shove t
 so poses near its path are forgotten. A refused action (unreachable, colliding:
 ``PreconditionError``) counts as a step that changed nothing, and so does an executed action
 after which no object moved more than 5 mm (a push against a wall or the target): both are
-banned from the next decisions until something changes. An episode never raises for a scene without a solution: it ends
-with a reason (``no valid action``, ``step limit``, ``grasp failed``...).
+banned from the next decisions until something changes. An episode never raises for a scene
+without a solution: it ends with a reason (``no valid action``, ``step limit``, ``grasp
+failed``...).
 """
 
 from __future__ import annotations
