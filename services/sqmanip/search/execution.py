@@ -14,6 +14,11 @@ import numpy as np
 
 from sqmanip.errors import PreconditionError
 from sqmanip.sim import GRIPPER_MAX_WIDTH, Simulator
+from sqmanip.sim.kinematics import ARM_LINKS, HAND_FRAME
+from sqmanip.sim.simulator import grasp_path_samples, joint_path
+
+SWEPT_SPACING = 0.01
+"""Spacing (m) of the arm's surface points in :meth:`SimGraspCheck.swept` (one per 1 cm voxel)."""
 
 
 class SimGraspCheck:
@@ -32,6 +37,7 @@ class SimGraspCheck:
         self.last_blockers: list[frozenset[int]] = []
         """Per pose of the last ``objects=True`` call: the planner's indices of the objects the
         refused plan hit (empty when it passed or hit only the shelf)."""
+        self._swept: dict[bytes, np.ndarray] = {}
 
     def _one(self, pose: np.ndarray, objects: bool) -> bool:
         try:
@@ -50,6 +56,45 @@ class SimGraspCheck:
             if name.startswith("object "):
                 out.add(self.object_index.get(int(name.split()[1]), -1))
         return frozenset(out)
+
+    def swept(self, poses: np.ndarray) -> list[np.ndarray]:
+        """Per grasp pose ``(K, 4, 4)``: the world points ``(S, 3)`` the arm's surface (links
+        1-7 and the hand) passes through inside the shelf on the robot's plan without objects
+        (the joint path from home, through the approach start when the plan has one, to the
+        pre-grasp, then the approach to the grasp), one per :data:`SWEPT_SPACING` voxel; empty
+        when the arm cannot execute the grasp. An object of a predicted scene that enters these
+        points blocks the grasp the way the simulator's check would (memoised per pose)."""
+        from sqmanip.grasping.reachability import sim_tool_pose
+
+        T = sim_tool_pose(np.asarray(poses, np.float64).reshape(-1, 4, 4))
+        out = []
+        for pose in T:
+            key = np.round(pose, 4).tobytes()
+            if key not in self._swept:
+                if len(self._swept) > 4096:
+                    self._swept.clear()
+                self._swept[key] = self._swept_one(pose)
+            out.append(self._swept[key])
+        return out
+
+    def _swept_one(self, pose: np.ndarray) -> np.ndarray:
+        sim = self.sim
+        try:
+            plan = sim.plan_grasp(pose, self.width, sim.home, objects=False)
+        except PreconditionError:
+            return np.zeros((0, 3))
+        stops = [sim.home] + ([plan.via] if plan.via is not None else []) + [plan.pre]
+        qs = [plan.pre, plan.grasp, *joint_path(plan.pre, plan.grasp, 4)]
+        for a, b in zip(stops[:-1], stops[1:], strict=True):
+            qs += joint_path(a, b, grasp_path_samples(a, b))
+        links = (*ARM_LINKS, HAND_FRAME)
+        pts = np.concatenate([sim.kin.link_points(q, links, SWEPT_SPACING) for q in qs])
+        lo, hi = sim.config.shelf.inner_bounds()
+        pts = pts[np.all((pts >= lo - 0.01) & (pts <= hi + 0.01), axis=-1)]
+        _, first = np.unique(
+            np.floor(pts / SWEPT_SPACING).astype(np.int64), axis=0, return_index=True
+        )
+        return pts[np.sort(first)]
 
     def __call__(self, poses: np.ndarray, objects: bool) -> np.ndarray:
         from sqmanip.grasping.reachability import sim_tool_pose

@@ -35,7 +35,7 @@ from .config import SearchConfig
 from .existence import ExistenceModel
 from .graspability import GraspabilityModel
 from .objective import FGEvaluator, Maps, sequence_cost
-from .shelf import PoseGrid, SceneState, ShelfSpec, TargetSpec, make_pose_grid
+from .shelf import Obstacles, PoseGrid, SceneState, ShelfSpec, TargetSpec, make_pose_grid
 
 
 @dataclasses.dataclass
@@ -60,7 +60,10 @@ class GraspCheck(Protocol):
     and collision checks. Optional attribute ``last_blockers``: per pose of the last
     ``objects=True`` call, the planner's indices of the objects a refused grasp hit (-1: one
     the planner does not know); :meth:`SearchPlanner.decide` then counts them as obstacles of
-    that grasp in a predicted scene until they move."""
+    that grasp in a predicted scene until they move. Optional method ``swept(poses) -> list of
+    (S, 3)``: the points the whole arm passes through on each grasp's plan (see
+    :meth:`sqmanip.search.execution.SimGraspCheck.swept`); a moved object of a predicted scene
+    that enters them blocks that grasp."""
 
     def __call__(self, poses: np.ndarray, objects: bool) -> np.ndarray: ...
 
@@ -138,7 +141,9 @@ class SearchPlanner:
         (inflated, and only an estimate behind what was seen) is blocked; the one with
         ``objects=False`` filters those of the predicted scenes (the arm-shelf part does not
         move), where the objects a refused grasp hit (the check's ``last_blockers``) count as
-        obstacles of it until they moved 2 cm (:func:`_unblocked`).
+        obstacles of it until they moved 2 cm, or, when the check has ``swept``, as long as
+        their predicted shape still enters the points the arm sweeps on that grasp's plan; an
+        object moved into those points blocks it too (:func:`_unblocked`).
         When no candidate passes even without objects, no rearrangement can make the target
         graspable and the decision is ``none``.
 
@@ -159,6 +164,7 @@ class SearchPlanner:
         prior_t = None if prior is None else torch.as_tensor(np.asarray(prior)).bool()
         allowed_now = allowed_later = None
         blockers: dict[int, frozenset[int]] = {}
+        arm_sweep: SweptArm | None = None
         if target_visible and grasp_check is not None:
             t = time.perf_counter()
             i = grid.nearest(target_pose)
@@ -172,6 +178,9 @@ class SearchPlanner:
                 named = getattr(grasp_check, "last_blockers", None)
                 if named is not None and len(named) == int(ok_arm.sum()):
                     blockers = dict(zip(np.flatnonzero(ok_arm).tolist(), named, strict=True))
+                if hasattr(grasp_check, "swept") and not ok_now.any():
+                    arm = np.flatnonzero(ok_arm)
+                    arm_sweep = SweptArm.pack(arm, grasp_check.swept(poses[arm]))
             allowed_now = (i, torch.from_numpy(ok_now))
             allowed_later = (i, torch.from_numpy(ok_arm))
             times["grasp_check"] = (time.perf_counter() - t) * 1e3
@@ -257,8 +266,8 @@ class SearchPlanner:
             return Decision("none", {}, f_map, fg_map, root.J, times, reason="no valid action")
         t = time.perf_counter()
         later = allowed_later
-        if allowed_later is not None and blockers:
-            later = functools.partial(_unblocked, allowed_later, blockers, scene)
+        if allowed_later is not None and (blockers or arm_sweep is not None):
+            later = functools.partial(_unblocked, allowed_later, blockers, scene, arm_sweep)
 
         def rollouts(actions):
             return self._rollouts(
@@ -416,26 +425,75 @@ class SearchPlanner:
 
 
 MOVED = 0.02
-"""An object counts as moved out of a grasp's way in a predicted scene when its centre moved at
-least this far (m) (ours)."""
+"""An object counts as moved in a predicted scene when its centre moved at least this far (m);
+one that did not keeps blocking the grasps it blocks now (ours)."""
+
+SWEPT_MARGIN = 0.01
+"""Objects are grown by this much (m) against the arm's swept points: the points are 1 cm
+apart, and the recognized shapes a few mm off."""
+
+
+@dataclasses.dataclass
+class SweptArm:
+    """The points ``(S, 3)`` the whole arm sweeps on the robot's plan of each executable target
+    grasp, and the grasp (candidate index) ``owner (S,)`` each belongs to."""
+
+    points: torch.Tensor
+    owner: torch.Tensor
+
+    @classmethod
+    def pack(cls, candidates: np.ndarray, points: Sequence[np.ndarray]) -> SweptArm:
+        owner = np.concatenate(
+            [np.full(len(p), k) for k, p in zip(candidates, points, strict=True)]
+        )
+        pts = np.concatenate([np.asarray(p, np.float64).reshape(-1, 3) for p in points])
+        return cls(torch.as_tensor(pts, dtype=torch.float32), torch.as_tensor(owner).long())
+
+    def blocked(self, state: SceneState, which: torch.Tensor, n: int) -> torch.Tensor:
+        """``(n,)``: per candidate, how many of the objects ``which`` of ``state`` (grown by
+        :data:`SWEPT_MARGIN`) its swept points enter."""
+        from sqmanip.geometry.superquadric import implicit_homogeneous
+
+        out = torch.zeros(n, dtype=torch.long)
+        if not len(which) or not len(self.points):
+            return out
+        params = state.params[which].clone()
+        params[:, :3] = params[:, :3].abs() + SWEPT_MARGIN
+        obs = Obstacles.from_tensors(params, state.poses[which], state.kinds[which])
+        pts = self.points.to(params.dtype)
+        for m in range(len(obs)):
+            local = pts @ obs.inv[m, :3, :3].T + obs.inv[m, :3, 3]
+            near = (local.abs() <= obs.half[m]).all(-1).nonzero().squeeze(-1)
+            if not len(near):
+                continue
+            x = local[near].unsqueeze(-2)
+            s = implicit_homogeneous(x, obs.params[m].expand(len(near), -1), int(obs.kinds[m]))
+            hit = near[s.squeeze(-1) <= 1.0]
+            out[torch.unique(self.owner[hit])] += 1
+        return out
 
 
 def _unblocked(
     allowed: tuple[int, torch.Tensor],
     blockers: dict[int, frozenset[int]],
     scene: SceneState,
+    swept: SweptArm | None,
     state: SceneState,
 ) -> tuple[int, torch.Tensor, torch.Tensor]:
-    """``allowed`` with, per candidate, the number of objects the robot's plan was refused on
-    now that have not moved ``MOVED`` in the predicted ``state`` (an object the planner does
-    not know, -1, never moves): obstacles for ``g_c,m`` beside those the afterimage of the
-    gripper and links 6-7 hits. Without them the afterimage alone expects a grasp to open when
-    one of its several blockers (often hit by links 4-5 at the pre-grasp) moves."""
+    """``allowed`` with, per candidate, the obstacles the robot's plan meets in the predicted
+    ``state`` beside those the afterimage of the gripper and links 6-7 hits (for ``g_c,m``):
+    the objects its plan was refused on now that have not moved ``MOVED`` (an object the
+    planner does not know, -1, never moves), and, with ``swept``, every moved object whose
+    predicted shape enters the points the arm sweeps on that plan. Without ``swept`` a blocker
+    counts as gone once it moved ``MOVED``, and the planner kept pushing a box 5 cm at a time
+    along the arm's path, each push predicted to free the grasp (scenario seed 2506)."""
     i, ok = allowed
     extra = torch.zeros(len(ok), dtype=torch.long)
     moved = (state.poses[:, :2, 3] - scene.poses[:, :2, 3]).norm(dim=-1) >= MOVED
     for k, objs in blockers.items():
         extra[k] = sum(1 for b in objs if b < 0 or b >= len(moved) or not bool(moved[b]))
+    if swept is not None:
+        extra += swept.blocked(state, moved.nonzero().squeeze(-1), len(ok))
     return i, ok, extra
 
 

@@ -56,6 +56,36 @@ def link_vertices(link: str) -> np.ndarray:
     return np.asarray(rows, dtype=np.float64)
 
 
+@functools.cache
+def link_surface(link: str, spacing: float) -> np.ndarray:
+    """Points ``(S, 3)`` on a link's collision mesh in the link frame, no two neighbours farther
+    apart than about ``spacing`` (m): each triangle holds a barycentric lattice with ``m =
+    ceil(longest edge / spacing)`` steps, thinned to one point per ``spacing`` voxel. The
+    meshes' own vertices are sparse on the large faces (the hand's 102 span 20 cm), where a
+    5 cm object could slip between them."""
+    name = link.removeprefix("panda_") + ".obj"
+    path = os.path.join(os.path.dirname(PANDA_URDF), "meshes", "collision", name)
+    with open(path) as f:
+        lines = f.read().splitlines()
+    verts = np.asarray([ln.split()[1:4] for ln in lines if ln.startswith("v ")], np.float64)
+    faces = [
+        [int(t.split("/")[0]) - 1 for t in ln.split()[1:4]] for ln in lines if ln.startswith("f ")
+    ]
+    out = [verts]
+    for tri in verts[np.asarray(faces, np.int64)]:
+        edges = np.linalg.norm(tri - np.roll(tri, 1, axis=0), axis=-1)
+        m = math.ceil(float(edges.max()) / spacing)
+        if m < 2:
+            continue
+        i, j = np.meshgrid(np.arange(m + 1), np.arange(m + 1), indexing="ij")
+        keep = i + j <= m
+        u, v = i[keep] / m, j[keep] / m
+        out.append(tri[0] + u[:, None] * (tri[1] - tri[0]) + v[:, None] * (tri[2] - tri[0]))
+    pts = np.concatenate(out)  # thin fan triangles pile points up: keep one per voxel
+    _, first = np.unique(np.floor(pts / spacing).astype(np.int64), axis=0, return_index=True)
+    return pts[np.sort(first)]
+
+
 @dataclasses.dataclass(frozen=True)
 class IKResult:
     """Outcome of one IK solve: joint angles ``q (7,)``, convergence flag and final errors."""
@@ -107,14 +137,18 @@ class PandaKinematics:
         pin.framesForwardKinematics(self.model, self.data, np.asarray(q, np.float64))
         return self.base_pose @ self.data.oMf[fid].homogeneous
 
-    def link_points(self, q: np.ndarray, links: tuple[str, ...] = ARM_LINKS) -> np.ndarray:
+    def link_points(
+        self, q: np.ndarray, links: tuple[str, ...] = ARM_LINKS, spacing: float | None = None
+    ) -> np.ndarray:
         """World points ``(M, 3)``: the collision-mesh vertices of ``links`` at joint angles
-        ``q (7,)`` (one forward kinematics pass)."""
+        ``q (7,)`` (one forward kinematics pass), or with ``spacing`` points that cover the
+        mesh surfaces that densely (:func:`link_surface`)."""
         pin.framesForwardKinematics(self.model, self.data, np.asarray(q, np.float64))
         out = []
         for link in links:
             T = self.base_pose @ self.data.oMf[self.model.getFrameId(link)].homogeneous
-            out.append(link_vertices(link) @ T[:3, :3].T + T[:3, 3])
+            local = link_vertices(link) if spacing is None else link_surface(link, spacing)
+            out.append(local @ T[:3, :3].T + T[:3, 3])
         return np.concatenate(out)
 
     def ik(

@@ -152,11 +152,10 @@ def test_grasp_check_names_the_objects_that_block_a_grasp(sim):
         assert named == (frozenset() if ok else frozenset({7}))
 
 
-def test_a_refused_grasp_names_the_object_even_when_its_first_ik_seed_fails(sim):
-    """Deep in the shelf's left corner the first IK seed of some grasps fails on its own and a
-    later seed's arm is stopped by the box in front: the refusal must name the box (what the
-    planner can move), not the first seed's IK error. Every grasp the arm could make on the
-    empty shelf is refused here, and each names the box."""
+def _corner_box_grasps(sim, planner_index: int):
+    """A box in front of a target deep in the shelf's left corner: the grasp check (the box is
+    the planner's object ``planner_index``), the target's grasps the arm can make on the empty
+    shelf, and which of them it passes with the box there."""
     from sqmanip.search.execution import SimGraspCheck
 
     box = ObjectSpec("box", position=(0.72, 0.29, 0.28), size=(0.09, 0.05, 0.16), name="b")
@@ -164,7 +163,35 @@ def test_a_refused_grasp_names_the_object_even_when_its_first_ik_seed_fails(sim)
     poses, valid = _target_grasps_in(sim, scenario)
     check = SimGraspCheck(sim)
     poses = poses[valid][check(poses[valid], False)]
-    check.object_index = {0: 7}
-    now = check(poses, True)
+    check.object_index = {0: planner_index}
+    return check, poses, check(poses, True)
+
+
+def test_a_refused_grasp_names_the_object_even_when_its_first_ik_seed_fails(sim):
+    """Deep in the shelf's left corner the first IK seed of some grasps fails on its own and a
+    later seed's arm is stopped by the box in front: the refusal must name the box (what the
+    planner can move), not the first seed's IK error. Every grasp the arm could make on the
+    empty shelf is refused here, and each names the box."""
+    check, poses, now = _corner_box_grasps(sim, 7)
     assert len(poses) and not now.any()
     assert check.last_blockers == [frozenset({7})] * len(poses)
+
+
+def test_the_arms_swept_points_meet_the_box_that_blocks_a_grasp_and_not_once_it_is_gone(sim):
+    """``SimGraspCheck.swept``: the points the arm passes through on each executable grasp's
+    plan. Every grasp the simulator refuses because of the box beside the target has points in
+    the box (its true shape), and in a predicted scene with the box at the far wall none has:
+    the planner can tell a push that clears the arm's way from one that leaves the box in it."""
+    from sqmanip.search.mpc import SweptArm
+    from sqmanip.search.shelf import SceneState
+
+    check, poses, now = _corner_box_grasps(sim, 0)
+    refused = np.array([b == frozenset({0}) for b in check.last_blockers])
+    assert refused.any() and not (now & refused).any()
+    arm = SweptArm.pack(np.arange(len(poses)), check.swept(poses))
+    truth = SceneState.from_objects([sim.get_state().objects[0].superquadric])
+    assert (arm.blocked(truth, torch.tensor([0]), len(poses))[refused] == 1).all()
+    far = truth.poses.clone()
+    far[0, :2, 3] = torch.tensor([0.6, -0.28])
+    gone = truth.with_poses(far)
+    assert (arm.blocked(gone, torch.tensor([0]), len(poses)) == 0).all()

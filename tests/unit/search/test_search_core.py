@@ -340,10 +340,39 @@ def test_predicted_grasps_count_the_blockers_the_robot_named_until_they_move():
     )
     ok = torch.tensor([True, True, True, False])
     blockers = {0: frozenset({0, 1}), 1: frozenset({-1}), 2: frozenset()}
-    i, ok0, extra = _unblocked((5, ok), blockers, scene, scene)
+    i, ok0, extra = _unblocked((5, ok), blockers, scene, None, scene)
     assert i == 5 and torch.equal(ok0, ok) and extra.tolist() == [2, 1, 0, 0]
-    _, _, extra = _unblocked((5, ok), blockers, scene, moved)
+    _, _, extra = _unblocked((5, ok), blockers, scene, None, moved)
     assert extra.tolist() == [1, 1, 0, 0]
+
+
+def test_a_moved_object_blocks_the_grasps_whose_arm_sweep_it_enters():
+    """With the arm's swept points (``SweptArm``) a blocker that moved counts only while its
+    predicted shape still meets the sweep of that grasp, and any object moved into a sweep
+    blocks that grasp: object 1 slid 5 cm along candidate 0's sweep still blocks it and now
+    also enters candidate 2's; object 0 did not move and blocks nothing new."""
+    from sqmanip.search.mpc import SweptArm, _unblocked
+
+    scene = SceneState.from_objects(
+        [box(0.6, 0.0, 0.05, 0.05, 0.1), box(0.7, 0.1, 0.05, 0.05, 0.1)]
+    )
+    moved = SceneState.from_objects(
+        [box(0.6, 0.0, 0.05, 0.05, 0.1), box(0.7, 0.15, 0.05, 0.05, 0.1)]
+    )
+    z = SHELF.bottom_z + 0.05
+    along_y = np.stack([np.full(30, 0.7), np.linspace(0.05, 0.25, 30), np.full(30, z)], -1)
+    ahead = np.array([[0.7, 0.17, z]])
+    far = np.array([[0.55, -0.25, z]])
+    arm = SweptArm.pack(np.array([0, 1, 2]), [along_y, far, ahead])
+    ok = torch.tensor([True, True, True, False])
+    blockers = {0: frozenset({1}), 1: frozenset(), 2: frozenset()}
+    _, _, extra = _unblocked((5, ok), blockers, scene, arm, moved)
+    assert extra.tolist() == [1, 0, 1, 0]
+    gone = SceneState.from_objects(
+        [box(0.6, 0.0, 0.05, 0.05, 0.1), box(0.7, -0.25, 0.05, 0.05, 0.1)]
+    )
+    _, _, extra = _unblocked((5, ok), blockers, scene, arm, gone)
+    assert extra.tolist() == [0, 0, 0, 0]
 
 
 def test_a_blocker_beside_the_seen_target_is_pushed_even_where_the_pusher_sweeps_it():

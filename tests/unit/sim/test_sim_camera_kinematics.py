@@ -88,3 +88,19 @@ def test_whole_workspace_is_reachable_pointing_down_and_far_poses_are_not(kin):
     T[:3, :3] = np.diag([1.0, -1.0, -1.0])
     T[:3, 3] = (1.2, 0.0, 0.05)
     assert not kin.reachable(T, home)
+
+
+def test_link_surface_covers_the_large_faces_the_mesh_vertices_leave_open():
+    """The hand's 102 collision-mesh vertices leave 20 cm faces bare; its surface points lie on
+    the mesh (inside its bounding box) and no point of a face is farther than about the
+    spacing from one of them."""
+    from sqmanip.sim.kinematics import link_surface, link_vertices
+
+    verts = link_vertices("panda_hand")
+    pts = link_surface("panda_hand", 0.01)
+    assert len(pts) > 3 * len(verts)
+    assert (pts >= verts.min(0) - 1e-9).all() and (pts <= verts.max(0) + 1e-9).all()
+    # the middle of the hand's broad face, between far-apart vertices
+    probe = np.array([0.0, 0.0, verts[:, 2].max()])
+    assert np.linalg.norm(verts - probe, axis=-1).min() > 0.02
+    assert np.linalg.norm(pts - probe, axis=-1).min() < 0.01 * np.sqrt(3)
