@@ -148,8 +148,11 @@ class SearchPlanner:
         graspable and the decision is ``none``.
 
         Pushes whose hand or slide may touch where the target may stand are sampled only when
-        nothing else is valid, or when the target is seen and no sequence of the others makes
-        it graspable in a predicted scene: a blocker beside the target may be movable only so
+        nothing else is valid (first those whose hand alone passes there, then, when there is
+        none, those whose pushed object slides there: a slide through the hidden target shoved
+        it against a wall, out of every grasp, seed 2500), or when the target is seen and no
+        sequence of the others makes it graspable in a predicted scene: a blocker beside the
+        target may be movable only so
         (ours). A seen target is never in the way of a pushed object: only the hand may pass
         by it."""
         if target_visible and target_pose is None:
@@ -253,13 +256,16 @@ class SearchPlanner:
             return [a for a in out if self.feasible(a, shelf) and (reject is None or not reject(a))]
 
         # pushes that may sweep where the target may stand come only when nothing else is
-        # left, priced by that risk (risk_weight); picks and places always keep out of it. A
-        # seen target is never in the pushed object's way: it would be shoved along, and the
-        # push model (which moves the pushed object only) cannot tell where to
+        # left (the hand first, the pushed object's slide last), priced by that risk
+        # (risk_weight); picks and places always keep out of it. A seen target is never in the
+        # pushed object's way: it would be shoved along, and the push model (which moves the
+        # pushed object only) cannot tell where to
         first = sample(True, True)
         swept = not first and bool(keep_out.numel())
         if swept:
-            first = sample(False, target_visible)
+            first = sample(False, True)
+            if not first and not target_visible:
+                first = sample(False, False)
         times["sample"] = (time.perf_counter() - t) * 1e3
         if not first:
             times["total"] = (time.perf_counter() - t0) * 1e3

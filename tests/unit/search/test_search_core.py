@@ -438,3 +438,29 @@ def test_a_seen_targets_keep_out_disc_stands_where_the_target_stands(models):
     r = TARGET.horizontal_radius + CFG.keep_out_margin
     assert torch.allclose(disc, torch.tensor([[0.713, 0.118, r]], dtype=disc.dtype))
     assert planner._keep_out(grid.xy, f, TARGET).shape == (1, 3)  # hidden: the grid pose
+
+
+def test_a_fallback_push_lets_the_hand_pass_where_the_target_may_stand_before_the_slide():
+    """No push of the two boxes keeps both the hand and the pushed box out of where the
+    target may stand. Pushes whose box stops short of those poses (only the hand passes them)
+    come first: the chosen one is among them; a box slid through a hidden target shoves it."""
+    torch.set_num_threads(1)
+    objs = [box(0.608, -0.155, 0.057, 0.071, 0.2), box(0.713, 0.202, 0.062, 0.088, 0.15)]
+    cfg = SearchConfig(resolution=0.04, n_sequences=16, horizon=1, actions="push")
+    planner = SearchPlanner(KinematicPushDynamics(), None, cfg)
+    d = planner.decide(objs, TARGET, SHELF, SHELF.camera(), False, rng=0)
+    grid, ev, sampler = planner.models(SHELF, TARGET, SHELF.camera())
+    scene = SceneState.from_objects(objs)
+    keep_out = planner._keep_out(grid.xy, ev.maps(scene).f, TARGET)
+    hand_only = {
+        (i, p[0], dist)
+        for i in range(len(scene))
+        for p in sampler.push_poses(scene, i, None)
+        for dist in sampler.push_distances(scene, i, p[0], keep_out)
+    }
+    assert hand_only and not sampler.candidates(scene, keep_out)[0]  # the hand-only stage
+    slides = sampler.candidates(scene, keep_out, False, None, False)[0]
+    assert sum(len(p[3]) for v in slides.values() for p in v) > len(hand_only)
+    assert d.kind == "push" and d.params["target_risk"] > 0
+    assert (d.params["object"], d.params["direction"], d.params["distance"]) in hand_only
+
