@@ -463,4 +463,3 @@ def test_a_fallback_push_lets_the_hand_pass_where_the_target_may_stand_before_th
     assert sum(len(p[3]) for v in slides.values() for p in v) > len(hand_only)
     assert d.kind == "push" and d.params["target_risk"] > 0
     assert (d.params["object"], d.params["direction"], d.params["distance"]) in hand_only
-
