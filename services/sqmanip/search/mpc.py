@@ -128,7 +128,7 @@ class SearchPlanner:
         grasp_check: GraspCheck | None = None,
     ) -> Decision:
         """One MPC step. ``prior (P,)`` is the previous ``f`` (optional; ``f <= prior``);
-        ``reject`` (optional) drops first actions (e.g. ones the robot refused before).
+        ``reject`` (optional) drops actions (e.g. ones the robot refused before), first and later.
 
         Sampled actions the robot cannot execute are dropped (:meth:`feasible`).
 
@@ -277,7 +277,17 @@ class SearchPlanner:
 
         def rollouts(actions):
             return self._rollouts(
-                scene, root, actions, ev, sampler, shelf, target_visible, target_pose, rng, later
+                scene,
+                root,
+                actions,
+                ev,
+                sampler,
+                shelf,
+                target_visible,
+                target_pose,
+                rng,
+                later,
+                reject,
             )
 
         costs, grasps = rollouts(first)
@@ -322,11 +332,24 @@ class SearchPlanner:
         return poses, valid[0].numpy().copy()
 
     def _rollouts(
-        self, scene, root: Maps, first, ev, sampler, shelf, visible, target_pose, rng, allowed=None
+        self,
+        scene,
+        root: Maps,
+        first,
+        ev,
+        sampler,
+        shelf,
+        visible,
+        target_pose,
+        rng,
+        allowed=None,
+        reject=None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Cost (5.4.6) of each sequence starting with ``first[s]``, and whether ``f * g`` is
         non-zero anywhere in one of its predicted scenes (a graspable pose where the target
-        may stand)."""
+        may stand). ``reject`` drops later actions too: an object that has not moved in the
+        prediction offers the robot's refused action again, and a sequence that counted on
+        it (push another object, then the unreachable push) won every step (seed 6300)."""
         cfg = self.config
         grid = ev.em.grid
         costs = np.zeros(len(first))
@@ -350,7 +373,7 @@ class SearchPlanner:
                 keep_out = self._keep_out(
                     grid.xy, m.f, ev.em.target, target_pose if visible else None
                 )
-                nxt = self._one_action(state, sampler, rng, keep_out)
+                nxt = self._one_action(state, sampler, rng, keep_out, reject)
                 if nxt is None:
                     break
                 state = apply_actions(state, [nxt], self.dynamics, shelf)[0]
@@ -397,7 +420,9 @@ class SearchPlanner:
                 return False
         return True
 
-    def _one_action(self, state, sampler: ActionSampler, rng, keep_out) -> Action | None:
+    def _one_action(
+        self, state, sampler: ActionSampler, rng, keep_out, reject=None
+    ) -> Action | None:
         """A single action for a predicted scene: a random object and type, checked lazily."""
         cfg = self.config
         kinds = {"both": ("push", "pick"), "push": ("push",), "pick_and_place": ("pick",)}[
@@ -415,7 +440,7 @@ class SearchPlanner:
                         continue
                     d = ds[int(rng.integers(len(ds)))]
                     a = Push("push", i, direction, d, T, tcp, np.array([0.0, direction * d, 0.0]))
-                    if self.feasible(a, self._shelf):
+                    if self.feasible(a, self._shelf) and (reject is None or not reject(a)):
                         return a
             else:
                 gr = sampler.grasps(state, i, keep_out)
@@ -425,7 +450,7 @@ class SearchPlanner:
                         place = gr[0].double().numpy().copy()
                         place[:2, 3] += spots[int(rng.integers(spots.shape[0]))].double().numpy()
                         a = PickAndPlace("pick_and_place", i, gr[0].double().numpy(), place)
-                        if self.feasible(a, self._shelf):
+                        if self.feasible(a, self._shelf) and (reject is None or not reject(a)):
                             return a
         return None
 

@@ -463,3 +463,53 @@ def test_a_fallback_push_lets_the_hand_pass_where_the_target_may_stand_before_th
     assert sum(len(p[3]) for v in slides.values() for p in v) > len(hand_only)
     assert d.kind == "push" and d.params["target_risk"] > 0
     assert (d.params["object"], d.params["direction"], d.params["distance"]) in hand_only
+
+
+def test_refused_actions_match_within_a_tolerance_and_unreachable_ones_last():
+    """The same push on the next observation starts a few mm off: it is still refused. An
+    unreachable push stays refused after something moved; a colliding pick and a push that
+    moved nothing are forgotten then. A pick refused at its grasp bans every place spot."""
+    from sqmanip.search.actions import PickAndPlace, Push
+    from sqmanip.search.episode import RefusedActions
+
+    def push(y, direction=1):
+        start = np.array([0.70, y, 0.26])
+        return Push("push", 0, direction, 0.1, np.eye(4), start, np.array([0, 0.1 * direction, 0]))
+
+    def pick(x, place_y):
+        grasp, place = np.eye(4), np.eye(4)
+        grasp[:3, 3] = (x, 0.0, 0.26)
+        place[:3, 3] = (0.6, place_y, 0.26)
+        return PickAndPlace("pick_and_place", 1, grasp, place)
+
+    refused = RefusedActions()
+    assert not refused and not refused(push(-0.21))
+    refused.add(push(-0.21), "refused: push unreachable: push path needs a joint flip")
+    refused.add(pick(0.65, 0.2), "refused: grasp configuration collides with object 2")
+    refused.add(push(0.10), "")
+    assert refused(push(-0.2)) and refused(push(-0.222))
+    assert not refused(push(-0.24)) and not refused(push(-0.21, -1))
+    assert refused(pick(0.655, -0.1)) and not refused(pick(0.70, 0.2))
+    assert refused(push(0.10))
+    refused.something_moved()
+    assert refused(push(-0.2)) and not refused(pick(0.65, 0.2)) and not refused(push(0.10))
+
+
+def test_predicted_actions_skip_the_ones_the_robot_refused():
+    """The later actions of a sampled sequence are drawn in predicted scenes; where the object
+    has not moved they are the same as the refused ones, and are skipped too."""
+    from sqmanip.search import ActionSampler
+    from sqmanip.search.actions import Push
+
+    planner = SearchPlanner(KinematicPushDynamics(), None, CFG)
+    planner._shelf = SHELF
+    sampler = ActionSampler(SHELF, CFG, target_height=0.12)
+    state = SceneState.from_objects([box(0.62, 0.0, 0.04, 0.06, 0.15)])
+    rng = np.random.default_rng(0)
+    drawn = [planner._one_action(state, sampler, rng, None) for _ in range(40)]
+    assert any(isinstance(a, Push) for a in drawn)
+    drawn = [
+        planner._one_action(state, sampler, rng, None, lambda a: isinstance(a, Push))
+        for _ in range(40)
+    ]
+    assert not any(isinstance(a, Push) for a in drawn)
