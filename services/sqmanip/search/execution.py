@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from sqmanip.errors import PreconditionError
+from sqmanip.perception.preprocess import voxel_downsample
 from sqmanip.sim import GRIPPER_MAX_WIDTH, Simulator
 from sqmanip.sim.kinematics import ARM_LINKS, HAND_FRAME
 from sqmanip.sim.simulator import grasp_path_samples, joint_path
@@ -91,10 +92,7 @@ class SimGraspCheck:
         pts = np.concatenate([sim.kin.link_points(q, links, SWEPT_SPACING) for q in qs])
         lo, hi = sim.config.shelf.inner_bounds()
         pts = pts[np.all((pts >= lo - 0.01) & (pts <= hi + 0.01), axis=-1)]
-        _, first = np.unique(
-            np.floor(pts / SWEPT_SPACING).astype(np.int64), axis=0, return_index=True
-        )
-        return pts[np.sort(first)]
+        return pts[np.sort(voxel_downsample(pts, SWEPT_SPACING)[0])]
 
     def __call__(self, poses: np.ndarray, objects: bool) -> np.ndarray:
         from sqmanip.grasping.reachability import sim_tool_pose

@@ -81,9 +81,10 @@ def link_surface(link: str, spacing: float) -> np.ndarray:
         keep = i + j <= m
         u, v = i[keep] / m, j[keep] / m
         out.append(tri[0] + u[:, None] * (tri[1] - tri[0]) + v[:, None] * (tri[2] - tri[0]))
+    from sqmanip.perception.preprocess import voxel_downsample
+
     pts = np.concatenate(out)  # thin fan triangles pile points up: keep one per voxel
-    _, first = np.unique(np.floor(pts / spacing).astype(np.int64), axis=0, return_index=True)
-    return pts[np.sort(first)]
+    return pts[np.sort(voxel_downsample(pts, spacing)[0])]
 
 
 @dataclasses.dataclass(frozen=True)
