@@ -251,9 +251,20 @@ class SearchPlanner:
                 return checked[key]
 
         def sample(hand: bool, slide: bool) -> list[Action]:
+            # draw until n_sequences pass the robot's limits and the refusals (5.4.4 samples
+            # from valid actions): dropping the rest after one draw left as few as 4 sequences
             cands = sampler.candidates(scene, keep_out, hand, pick_ok, slide)
-            out = sampler.sample(scene, rng, cfg.n_sequences, keep_out, cands)
-            return [a for a in out if self.feasible(a, shelf) and (reject is None or not reject(a))]
+            out: list[Action] = []
+            for _ in range(SAMPLE_ROUNDS):
+                drawn = sampler.sample(scene, rng, cfg.n_sequences, keep_out, cands)
+                out += [
+                    a
+                    for a in drawn
+                    if self.feasible(a, shelf) and (reject is None or not reject(a))
+                ]
+                if not drawn or len(out) >= cfg.n_sequences:
+                    break
+            return out[: cfg.n_sequences]
 
         # pushes that may sweep where the target may stand come only when nothing else is
         # left (the hand first, the pushed object's slide last), priced by that risk
@@ -423,12 +434,13 @@ class SearchPlanner:
     def _one_action(
         self, state, sampler: ActionSampler, rng, keep_out, reject=None
     ) -> Action | None:
-        """A single action for a predicted scene: a random object and type, checked lazily."""
+        """A single action for a predicted scene: a random object and type, checked lazily
+        (up to 8 draws: with 4, rollouts ended early more often; 75 -> 78 of 108, paired)."""
         cfg = self.config
         kinds = {"both": ("push", "pick"), "push": ("push",), "pick_and_place": ("pick",)}[
             cfg.actions
         ]
-        for _ in range(4):
+        for _ in range(8):
             i = int(rng.integers(len(state)))
             kind = kinds[int(rng.integers(len(kinds)))]
             if kind == "push":
@@ -454,6 +466,9 @@ class SearchPlanner:
                             return a
         return None
 
+
+SAMPLE_ROUNDS = 8
+"""At most this many draws of ``n_sequences`` first actions per decision (ours)."""
 
 MOVED = 0.02
 """An object counts as moved in a predicted scene when its centre moved at least this far (m);

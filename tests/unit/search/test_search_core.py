@@ -513,3 +513,21 @@ def test_predicted_actions_skip_the_ones_the_robot_refused():
         for _ in range(40)
     ]
     assert not any(isinstance(a, Push) for a in drawn)
+
+
+def test_a_decision_weighs_n_sequences_valid_first_actions_when_most_draws_are_refused():
+    """5.4.4 samples the 30 sequences from valid actions: draws the robot refused before (or
+    cannot execute) are replaced by new draws, not dropped, so a decision still weighs
+    ``n_sequences`` of them (one draw left as few as 4) and none of the refused ones."""
+    torch.set_num_threads(1)
+    cfg = SearchConfig(resolution=0.04, n_sequences=12, horizon=1)
+    planner = SearchPlanner(KinematicPushDynamics(), None, cfg)
+    objs = [box(0.60, 0.0, 0.06, 0.14, 0.22), box(0.62, -0.2, 0.05, 0.05, 0.12)]
+
+    def refused(a):  # everything but the pushes of object 0 to the left
+        return not (a.kind == "push" and a.obj == 0 and a.direction == 1)
+
+    for seed in range(3):
+        d = planner.decide(objs, TARGET, SHELF, SHELF.camera(), False, rng=seed, reject=refused)
+        assert d.reason == "best of 12 sequences", (seed, d.reason)
+        assert not refused(d.action)
