@@ -10,6 +10,10 @@ be grasped because of the shelf), agree with what the robot will do.
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
+from typing import Any
+
 import numpy as np
 
 from sqmanip.errors import PreconditionError
@@ -65,18 +69,7 @@ class SimGraspCheck:
         pre-grasp, then the approach to the grasp), one per :data:`SWEPT_SPACING` voxel; empty
         when the arm cannot execute the grasp. An object of a predicted scene that enters these
         points blocks the grasp the way the simulator's check would (memoised per pose)."""
-        from sqmanip.grasping.reachability import sim_tool_pose
-
-        T = sim_tool_pose(np.asarray(poses, np.float64).reshape(-1, 4, 4))
-        out = []
-        for pose in T:
-            key = np.round(pose, 4).tobytes()
-            if key not in self._swept:
-                if len(self._swept) > 4096:
-                    self._swept.clear()
-                self._swept[key] = self._swept_one(pose)
-            out.append(self._swept[key])
-        return out
+        return [_memoised(self._swept, 4096, p, self._swept_one) for p in _tool_poses(poses)]
 
     def _swept_one(self, pose: np.ndarray) -> np.ndarray:
         sim = self.sim
@@ -95,20 +88,27 @@ class SimGraspCheck:
         return pts[np.sort(voxel_downsample(pts, SWEPT_SPACING)[0])]
 
     def __call__(self, poses: np.ndarray, objects: bool) -> np.ndarray:
-        from sqmanip.grasping.reachability import sim_tool_pose
-
-        T = sim_tool_pose(np.asarray(poses, np.float64).reshape(-1, 4, 4))
-        out = np.zeros(len(T), dtype=bool)
+        T = _tool_poses(poses)
         if objects:
             self.last_blockers = []
-        for k, pose in enumerate(T):
-            if objects:
-                out[k] = self._one(pose, True)
-                continue
-            key = np.round(pose, 4).tobytes()
-            if key not in self._arm:
-                if len(self._arm) > 65536:
-                    self._arm.clear()
-                self._arm[key] = self._one(pose, False)
-            out[k] = self._arm[key]
-        return out
+            return np.array([self._one(pose, True) for pose in T], dtype=bool)
+        arm_only = functools.partial(self._one, objects=False)
+        return np.array([_memoised(self._arm, 65536, pose, arm_only) for pose in T], dtype=bool)
+
+
+def _tool_poses(poses: np.ndarray) -> np.ndarray:
+    """The planner's grasp poses ``(K, 4, 4)`` as the simulator's tool poses."""
+    from sqmanip.grasping.reachability import sim_tool_pose
+
+    return sim_tool_pose(np.asarray(poses, np.float64).reshape(-1, 4, 4))
+
+
+def _memoised(cache: dict[bytes, Any], limit: int, pose: np.ndarray, compute: Callable) -> Any:
+    """``compute(pose)``, memoised per pose rounded to 0.1 mm; ``cache`` starts over past
+    ``limit`` entries."""
+    key = np.round(pose, 4).tobytes()
+    if key not in cache:
+        if len(cache) > limit:
+            cache.clear()
+        cache[key] = compute(pose)
+    return cache[key]

@@ -46,14 +46,24 @@ def _solve_spd(A: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 @functools.cache
-def link_vertices(link: str) -> np.ndarray:
-    """Vertices ``(V, 3)`` of a link's collision mesh in the link frame (the URDF places each
-    mesh at its link's origin; PyBullet collides a moving link's convex hull of them)."""
+def collision_mesh(link: str) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices ``(V, 3)`` (link frame) and triangles ``(F, 3)`` (vertex indices) of a link's
+    collision mesh (the URDF places each mesh at its link's origin)."""
     name = link.removeprefix("panda_") + ".obj"
     path = os.path.join(os.path.dirname(PANDA_URDF), "meshes", "collision", name)
     with open(path) as f:
-        rows = [line.split()[1:4] for line in f if line.startswith("v ")]
-    return np.asarray(rows, dtype=np.float64)
+        lines = f.read().splitlines()
+    verts = np.asarray([ln.split()[1:4] for ln in lines if ln.startswith("v ")], np.float64)
+    faces = [
+        [int(t.split("/")[0]) - 1 for t in ln.split()[1:4]] for ln in lines if ln.startswith("f ")
+    ]
+    return verts, np.asarray(faces, np.int64).reshape(-1, 3)
+
+
+def link_vertices(link: str) -> np.ndarray:
+    """Vertices ``(V, 3)`` of a link's collision mesh in the link frame (PyBullet collides a
+    moving link's convex hull of them)."""
+    return collision_mesh(link)[0]
 
 
 @functools.cache
@@ -63,16 +73,9 @@ def link_surface(link: str, spacing: float) -> np.ndarray:
     ceil(longest edge / spacing)`` steps, thinned to one point per ``spacing`` voxel. The
     meshes' own vertices are sparse on the large faces (the hand's 102 span 20 cm), where a
     5 cm object could slip between them."""
-    name = link.removeprefix("panda_") + ".obj"
-    path = os.path.join(os.path.dirname(PANDA_URDF), "meshes", "collision", name)
-    with open(path) as f:
-        lines = f.read().splitlines()
-    verts = np.asarray([ln.split()[1:4] for ln in lines if ln.startswith("v ")], np.float64)
-    faces = [
-        [int(t.split("/")[0]) - 1 for t in ln.split()[1:4]] for ln in lines if ln.startswith("f ")
-    ]
+    verts, faces = collision_mesh(link)
     out = [verts]
-    for tri in verts[np.asarray(faces, np.int64)]:
+    for tri in verts[faces]:
         edges = np.linalg.norm(tri - np.roll(tri, 1, axis=0), axis=-1)
         m = math.ceil(float(edges.max()) / spacing)
         if m < 2:
