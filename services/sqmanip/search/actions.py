@@ -453,13 +453,27 @@ class ActionSampler:
                 if p:
                     pushes[i] = p
             if self.config.actions in ("both", "pick_and_place"):
-                gr = self.grasps(scene, i, keep_out)
-                for k in range(gr.shape[0]):
-                    spots = self.place_spots(scene, i, gr[k], keep_out)
-                    if spots.shape[0] and (pick_ok is None or pick_ok(gr[k])):
-                        picks[i] = (gr[k], spots)
-                        break
+                pick = self.pick(scene, i, keep_out, pick_ok)
+                if pick is not None:
+                    picks[i] = pick
         return pushes, picks
+
+    def pick(
+        self,
+        scene: SceneState,
+        i: int,
+        keep_out: torch.Tensor | None,
+        pick_ok: Callable[[torch.Tensor], bool] | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """``(grasp (4, 4), spots (S, 2))`` of object ``i``: its first collision-free grasp
+        (:meth:`grasps`) with a free place spot (:meth:`place_spots`) that ``pick_ok`` (when
+        given) accepts; ``None`` when there is none."""
+        gr = self.grasps(scene, i, keep_out)
+        for k in range(gr.shape[0]):
+            spots = self.place_spots(scene, i, gr[k], keep_out)
+            if spots.shape[0] and (pick_ok is None or pick_ok(gr[k])):
+                return gr[k], spots
+        return None
 
     def sample(
         self,

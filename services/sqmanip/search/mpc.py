@@ -455,15 +455,14 @@ class SearchPlanner:
                     if self.feasible(a, self._shelf) and (reject is None or not reject(a)):
                         return a
             else:
-                gr = sampler.grasps(state, i, keep_out)
-                if gr.shape[0]:
-                    spots = sampler.place_spots(state, i, gr[0], keep_out)
-                    if spots.shape[0]:
-                        place = gr[0].double().numpy().copy()
-                        place[:2, 3] += spots[int(rng.integers(spots.shape[0]))].double().numpy()
-                        a = PickAndPlace("pick_and_place", i, gr[0].double().numpy(), place)
-                        if self.feasible(a, self._shelf) and (reject is None or not reject(a)):
-                            return a
+                pick = sampler.pick(state, i, keep_out)
+                if pick is not None:
+                    grasp, spots = pick
+                    place = grasp.double().numpy().copy()
+                    place[:2, 3] += spots[int(rng.integers(spots.shape[0]))].double().numpy()
+                    a = PickAndPlace("pick_and_place", i, grasp.double().numpy(), place)
+                    if self.feasible(a, self._shelf) and (reject is None or not reject(a)):
+                        return a
         return None
 
 

@@ -531,3 +531,30 @@ def test_a_decision_weighs_n_sequences_valid_first_actions_when_most_draws_are_r
         d = planner.decide(objs, TARGET, SHELF, SHELF.camera(), False, rng=seed, reject=refused)
         assert d.reason == "best of 12 sequences", (seed, d.reason)
         assert not refused(d.action)
+
+
+def test_predicted_picks_use_the_first_grasp_that_has_a_place_spot():
+    """A later action of a sampled sequence picks an object the way a first action does
+    (:meth:`ActionSampler.pick`): when the first collision-free grasp has no free place spot,
+    the next grasp that has one is used, not no pick at all."""
+    from sqmanip.search import ActionSampler
+
+    cfg = dataclasses.replace(CFG, actions="pick_and_place")
+    planner = SearchPlanner(KinematicPushDynamics(), None, cfg)
+    planner._shelf = SHELF
+    sampler = ActionSampler(SHELF, cfg, target_height=0.12)
+    state = SceneState.from_objects([box(0.62, 0.0, 0.04, 0.06, 0.15)])
+    grasps = sampler.grasps(state, 0)
+    assert grasps.shape[0] >= 2
+    all_spots = sampler.place_spots
+
+    def place_spots(scene, i, grasp, keep_out):  # no free spot for the first grasp's hand
+        if torch.equal(grasp, grasps[0]):
+            return torch.zeros(0, 2, dtype=grasps.dtype)
+        return all_spots(scene, i, grasp, keep_out)
+
+    sampler.place_spots = place_spots
+    rng = np.random.default_rng(0)
+    drawn = [planner._one_action(state, sampler, rng, None) for _ in range(10)]
+    assert drawn and all(a is not None for a in drawn)
+    assert all(np.allclose(a.grasp_pose, grasps[1].double().numpy()) for a in drawn)
