@@ -48,6 +48,21 @@ class Push:
     start: np.ndarray
     displacement: np.ndarray
 
+    @classmethod
+    def sideways(
+        cls, obj: int, direction: int, distance: float, gripper_pose: np.ndarray, start
+    ) -> Push:
+        """A push of ``distance`` towards ``direction`` * y (5.4.4 pushes left or right)."""
+        return cls(
+            "push",
+            obj,
+            direction,
+            distance,
+            gripper_pose,
+            start,
+            np.array([0.0, direction * distance, 0.0]),
+        )
+
     def as_vector(self) -> np.ndarray:
         """``(p, v)`` of the pushing dynamics model, (6,)."""
         return np.concatenate([self.start, self.displacement])
@@ -59,6 +74,16 @@ class PickAndPlace:
     obj: int
     grasp_pose: np.ndarray
     place_pose: np.ndarray
+
+    @classmethod
+    def to_random_spot(
+        cls, obj: int, grasp: torch.Tensor, spots: torch.Tensor, rng: np.random.Generator
+    ) -> PickAndPlace:
+        """Pick ``obj`` with ``grasp (4, 4)`` and place it shifted by one of ``spots (S, 2)``
+        (:meth:`ActionSampler.place_spots`), drawn by ``rng``."""
+        place = grasp.double().numpy().copy()
+        place[:2, 3] += spots[int(rng.integers(spots.shape[0]))].double().numpy()
+        return cls("pick_and_place", obj, grasp.double().numpy(), place)
 
     @property
     def transform(self) -> np.ndarray:
@@ -493,15 +518,9 @@ class ActionSampler:
             kind, i = pool[int(j)]
             if kind == "push":
                 direction, T, tcp, ds = pushes[i][int(rng.integers(len(pushes[i])))]
-                d = ds[int(rng.integers(len(ds)))]
-                v = np.array([0.0, direction * d, 0.0])
-                out.append(Push("push", i, direction, d, T, tcp, v))
+                out.append(Push.sideways(i, direction, ds[int(rng.integers(len(ds)))], T, tcp))
             else:
-                grasp, spots = picks[i]
-                s = spots[int(rng.integers(spots.shape[0]))].double().numpy()
-                place = grasp.double().numpy().copy()
-                place[:2, 3] += s
-                out.append(PickAndPlace("pick_and_place", i, grasp.double().numpy(), place))
+                out.append(PickAndPlace.to_random_spot(i, *picks[i], rng))
         return out
 
 

@@ -450,17 +450,13 @@ class SearchPlanner:
                     ds = sampler.push_distances(state, i, direction, keep_out)
                     if not ds:
                         continue
-                    d = ds[int(rng.integers(len(ds)))]
-                    a = Push("push", i, direction, d, T, tcp, np.array([0.0, direction * d, 0.0]))
+                    a = Push.sideways(i, direction, ds[int(rng.integers(len(ds)))], T, tcp)
                     if self.feasible(a, self._shelf) and (reject is None or not reject(a)):
                         return a
             else:
                 pick = sampler.pick(state, i, keep_out)
                 if pick is not None:
-                    grasp, spots = pick
-                    place = grasp.double().numpy().copy()
-                    place[:2, 3] += spots[int(rng.integers(spots.shape[0]))].double().numpy()
-                    a = PickAndPlace("pick_and_place", i, grasp.double().numpy(), place)
+                    a = PickAndPlace.to_random_spot(i, *pick, rng)
                     if self.feasible(a, self._shelf) and (reject is None or not reject(a)):
                         return a
         return None
