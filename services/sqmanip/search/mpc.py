@@ -257,11 +257,7 @@ class SearchPlanner:
             out: list[Action] = []
             for _ in range(SAMPLE_ROUNDS):
                 drawn = sampler.sample(scene, rng, cfg.n_sequences, keep_out, cands)
-                out += [
-                    a
-                    for a in drawn
-                    if self.feasible(a, shelf) and (reject is None or not reject(a))
-                ]
+                out += [a for a in drawn if self.allowed(a, shelf, reject)]
                 if not drawn or len(out) >= cfg.n_sequences:
                     break
             return out[: cfg.n_sequences]
@@ -431,6 +427,10 @@ class SearchPlanner:
                 return False
         return True
 
+    def allowed(self, a: Action, shelf: ShelfSpec, reject=None) -> bool:
+        """``a`` is :meth:`feasible` and ``reject`` (optional) does not drop it."""
+        return self.feasible(a, shelf) and (reject is None or not reject(a))
+
     def _one_action(
         self, state, sampler: ActionSampler, rng, keep_out, reject=None
     ) -> Action | None:
@@ -451,13 +451,13 @@ class SearchPlanner:
                     if not ds:
                         continue
                     a = Push.sideways(i, direction, ds[int(rng.integers(len(ds)))], T, tcp)
-                    if self.feasible(a, self._shelf) and (reject is None or not reject(a)):
+                    if self.allowed(a, self._shelf, reject):
                         return a
             else:
                 pick = sampler.pick(state, i, keep_out)
                 if pick is not None:
                     a = PickAndPlace.to_random_spot(i, *pick, rng)
-                    if self.feasible(a, self._shelf) and (reject is None or not reject(a)):
+                    if self.allowed(a, self._shelf, reject):
                         return a
         return None
 
