@@ -14,9 +14,7 @@ checkpoint directory (``--dynamics models/sqpdnet``, the thesis' choice). The ki
 the default because it measured better here: R-Search-for-Grasp at 6 and 8 objects on the saved
 seed-300/500 scenarios, 34 of 54 grasped against 30 with SQPD-Net (found 44 against 43), in
 half to two thirds of the planning time per decision
-(``benchmarks/results/search_r_sfg_6_8_seed*_sqpdnet.json``; the kinematic model has since
-learnt to shove what the pushed object runs into: 35 of 54, see
-:class:`sqmanip.search.KinematicPushDynamics`). Once the target is visible,
+(``benchmarks/results/search_r_sfg_6_8_seed*_sqpdnet.json``). Once the target is visible,
 ``g(x*)`` counts only the grasps the simulator's own IK and collision checks accept
 (:class:`sqmanip.search.execution.SimGraspCheck`), and scenarios whose target no such grasp
 reaches with the shelf alone are discarded (5.5.1). One PNG per shown episode (the first of each
@@ -172,7 +170,7 @@ def _worker_init() -> None:
 
 
 def _push_dynamics(name: str, floor_z: float):
-    """``kinematic`` (rigid slide of the pushed object and of what it shoves) or an SQPD-Net checkpoint directory,
+    """``kinematic`` (rigid slide of the pushed object) or an SQPD-Net checkpoint directory,
     lowered to the shelf floor (:class:`sqmanip.search.SQPDNetDynamics`)."""
     from sqmanip.search import KinematicPushDynamics, SQPDNetDynamics
 
@@ -340,7 +338,7 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--dynamics",
         default="kinematic",
-        help="push model: 'kinematic' (the pushed object slides and shoves what it runs into) or an SQPD-Net "
+        help="push model: 'kinematic' (the pushed object slides, the others stay) or an SQPD-Net "
         "checkpoint directory such as models/sqpdnet (default kinematic)",
     )
     ap.add_argument(

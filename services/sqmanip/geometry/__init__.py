@@ -54,7 +54,6 @@ from .superquadric import (
     radial_distance,
     superellipsoid_implicit,
     superellipsoid_parametric_normal,
-    superellipsoid_support,
     superellipsoid_surface,
     superparaboloid_implicit,
     superparaboloid_surface,

@@ -161,23 +161,6 @@ def implicit_homogeneous(
     return torch.exp(logf.clamp_max(MAX_LOG))
 
 
-def superellipsoid_support(d: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
-    """Support function ``h(d) = max_{x in S} x . d`` of plain superellipsoids: how far each
-    shape reaches along object-frame directions ``d (..., M, 3)`` (unit), ``(..., M)``.
-
-    The superellipsoid is the unit ball of the nested norm
-    ``((|x/a1|^p2 + |y/a2|^p2)^(p1/p2) + |z/a3|^p1)^(1/p1)`` with ``p = 2 / e``, so ``h`` is its
-    dual norm, the same nesting with ``q = 2 / (2 - e)``: for a cylinder (``e2 = 1``) the exact
-    ellipse reach, for a box (``e -> 0``) the corner bound ``a1 |d1| + a2 |d2| + a3 |d3|``.
-    Exact for ``k = b = 0``; deformations are ignored."""
-    check_points(d, "directions")
-    a1, a2, a3, e1, e2, *_ = unpack(params)
-    q1, q2 = 2.0 / (2.0 - e1), 2.0 / (2.0 - e2)
-    dx, dy, dz = (a * c.abs() for a, c in zip((a1, a2, a3), d.unbind(-1), strict=True))
-    xy = (dx.pow(q2) + dy.pow(q2)).pow(1.0 / q2)
-    return (xy.pow(q1) + dz.pow(q1)).pow(1.0 / q1)
-
-
 def radial_distance(x: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
     """Radial distance of a (deformed) superellipsoid (2.2.6, 3.3.4): ``(..., N, 3) -> (..., N)``.
 

@@ -28,7 +28,7 @@ from typing import Literal, Protocol
 import numpy as np
 import torch
 
-from sqmanip.geometry import Superquadric, superellipsoid_support
+from sqmanip.geometry import Superquadric
 from sqmanip.geometry.sampling import sample_surface
 from sqmanip.grasping import PANDA_HAND, GripperSpec, RuleOptions, gripper_points
 from sqmanip.grasping.rule_based import rule_based_candidates
@@ -135,20 +135,11 @@ class SQPDNetDynamics:
 
 class KinematicPushDynamics:
     """A simple push model: the pushed object (the one whose near side the pusher faces) slides
-    rigidly by the push length minus the initial gap, and with ``chain`` an object it runs into
-    is shoved along by what is left of the slide (and so on down the row), as in the
-    simulator; the others stay. Objects are their (world-turned) boxes for the contact test:
-    an object ahead within the pushed one's width meets it once the gap between their boxes
-    along the push is closed. The default without a trained SQPD-Net (ours).
+    rigidly by the push length minus the initial gap; the others stay. For tests and as a
+    fallback when no trained SQPD-Net is available."""
 
-    Measured with R-Search-for-Grasp at 6 and 8 objects on saved scenarios
-    (``benchmarks/results/search_r_sfg_*_{chainbox,reach}.json``): ``chain`` alone, with the
-    objects' reach still their box corners, grasped 32 of 54 against 34; with the reach from
-    :func:`world_half_extents` (pushes start the thesis' 1 cm from a turned cylinder, not from
-    its box corner) 35 of 54, and 17 of 35 against 15 on the seed-700 6-object scenes."""
-
-    def __init__(self, gap: float = 0.01, chain: bool = True) -> None:
-        self.gap, self.chain = gap, chain
+    def __init__(self, gap: float = 0.01) -> None:
+        self.gap = gap
 
     def predict(self, poses, params, actions, kinds=None) -> torch.Tensor:
         poses = torch.as_tensor(poses)
@@ -165,38 +156,11 @@ class KinematicPushDynamics:
         across = (rel - along.unsqueeze(-1) * u.unsqueeze(1))[..., :2].norm(dim=-1)
         score = torch.where(along > 0, across + 0.1 * along, torch.full_like(along, math.inf))
         i = score.argmin(-1)
+        move = (length - self.gap).clamp_min(0).unsqueeze(-1) * u
         k = torch.arange(K)
         ok = torch.isfinite(score[k, i])
-        slide = torch.zeros(K, N, dtype=poses.dtype)
-        slide[k[ok], i[ok]] = (length - self.gap).clamp_min(0)[ok]
-        if self.chain and N > 1:
-            slide = self._chain(poses, torch.as_tensor(params, dtype=poses.dtype), u, slide)
-        out[..., :3, 3] += slide.unsqueeze(-1) * u.unsqueeze(1)
+        out[k[ok], i[ok], :3, 3] += move[ok]
         return out
-
-    @staticmethod
-    def _chain(poses, params, u, slide) -> torch.Tensor:
-        """``(K, N)`` slide of every object once the pushed ones shove what they meet."""
-        R = poses[:, :3, :3]
-        w = torch.stack([-u[:, 1], u[:, 0], torch.zeros_like(u[:, 0])], -1)  # across, level
-
-        def extent(d):  # (K, N): half extent of each object's box along direction d (K, 3)
-            local = torch.einsum("nji,kj->kni", R, d).abs()
-            return (local * params[:, :3]).sum(-1)
-
-        c = poses[:, :3, 3]
-        pos_u = torch.einsum("nj,kj->kn", c, u)
-        pos_w = torch.einsum("nj,kj->kn", c, w)
-        eu, ew = extent(u), extent(w)
-        # gap[k, m, j] along the push between mover m and j ahead of it, within its width
-        gap = pos_u[:, None, :] - pos_u[:, :, None] - eu[:, :, None] - eu[:, None, :]
-        ahead = pos_u[:, None, :] > pos_u[:, :, None]
-        level = (pos_w[:, None, :] - pos_w[:, :, None]).abs() < ew[:, :, None] + ew[:, None, :]
-        meets = ahead & level & ~torch.eye(len(c), dtype=torch.bool)
-        for _ in range(len(c) - 1):
-            shove = torch.where(meets, slide[:, :, None] - gap.clamp_min(0), -math.inf)
-            slide = torch.maximum(slide, shove.amax(1).clamp_min(0))
-        return slide
 
 
 def keep_inside(poses: torch.Tensor, radii: torch.Tensor, shelf: ShelfSpec) -> torch.Tensor:
@@ -212,19 +176,19 @@ def keep_inside(poses: torch.Tensor, radii: torch.Tensor, shelf: ShelfSpec) -> t
     return out
 
 
-def horizontal_radius(scene: SceneState, n_directions: int = 24) -> torch.Tensor:
-    """``(N,)`` radius of a vertical cylinder about each centre holding the object: its reach
-    (:func:`sqmanip.geometry.superellipsoid_support`) over ``n_directions`` level directions."""
-    a = torch.arange(n_directions, dtype=scene.params.dtype) * (2 * math.pi / n_directions)
-    level = torch.stack([a.cos(), a.sin(), torch.zeros_like(a)], -1)  # (M, 3) world
-    local = level @ scene.poses[:, :3, :3]  # (N, M, 3): R^T d for each object
-    return superellipsoid_support(local, scene.params).amax(-1)
+def horizontal_radius(scene: SceneState) -> torch.Tensor:
+    """``(N,)`` radius of a vertical cylinder about each centre holding the object (box bound)."""
+    corners = torch.tensor(
+        [[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)],
+        dtype=scene.params.dtype,
+    )
+    c = (corners * scene.params[:, None, :3]) @ scene.poses[:, :3, :3].transpose(-1, -2)
+    return c[..., :2].norm(dim=-1).amax(-1)
 
 
 def world_half_extents(scene: SceneState) -> torch.Tensor:
-    """``(N, 3)`` reach of each object along the world axes (a cylinder's radius, a box's
-    corner bound), :func:`sqmanip.geometry.superellipsoid_support`."""
-    return superellipsoid_support(scene.poses[:, :3, :3].transpose(-1, -2), scene.params)
+    """``(N, 3)`` world-axis half extents of each object's box."""
+    return (scene.poses[:, :3, :3].abs() @ scene.params[:, :3].unsqueeze(-1)).squeeze(-1)
 
 
 class GraspSource:

@@ -223,22 +223,6 @@ def test_pushes_stop_short_of_where_the_target_may_stand():
     assert sampler.push_distances(scene, 0, 1, None) == [0.05, 0.10, 0.15]
 
 
-def test_a_push_starts_the_thesis_gap_from_a_turned_cylinder():
-    """5.4.4: the pushing finger starts 1 cm from the object. A cylinder turned 45 degrees
-    about the vertical still reaches its radius along the push (not the corner of its box)."""
-    from sqmanip.grasping import PANDA_HAND
-    from sqmanip.search import ActionSampler
-
-    T = np.eye(4)
-    T[:3, :3] = [[0.7071, -0.7071, 0], [0.7071, 0.7071, 0], [0, 0, 1]]
-    T[:3, 3] = (0.65, 0.0, SHELF.bottom_z + 0.06)
-    scene = SceneState.from_objects([Superquadric((0.035, 0.035, 0.06), (0.2, 1.0), T)])
-    starts = {d: tcp for d, _, tcp in ActionSampler(SHELF, CFG).push_poses(scene, 0)}
-    offset = 0.035 + CFG.push_gap + PANDA_HAND.finger_thickness
-    assert starts[1][1] == pytest.approx(-offset, abs=1e-4)
-    assert starts[-1][1] == pytest.approx(offset, abs=1e-4)
-
-
 def test_pusher_path_keeps_out_of_where_the_target_may_stand():
     """The closed hand moves in from the shelf front to the push start beside the object: a
     pose whose path crosses a disc where f = 1 (below the target's top) is dropped, the other
@@ -301,22 +285,6 @@ def test_fallback_pushes_are_priced_by_the_risk_of_shoving_the_target():
     if priced.params["start"].tolist() == free.params["start"].tolist():
         expected = free.objective + 1000.0 * priced.params["target_risk"] * max(J0, 1.0)
         assert priced.objective == pytest.approx(expected)
-
-
-def test_a_pushed_object_shoves_the_row_it_runs_into():
-    """Kinematic pushes: a box pushed 10 cm along +y moves 9 cm (the 1 cm gap), the box 3 cm
-    ahead of it the 6 cm left, the next one (5 cm further) 1 cm; one beside the row stays.
-    Without ``chain`` the pushed box passes through its neighbour."""
-    objs = [box(0.70, y, 0.06, 0.06, 0.10) for y in (0.0, 0.09, 0.20)]
-    objs.append(box(0.85, 0.10, 0.06, 0.06, 0.10))
-    scene = SceneState.from_objects(objs)
-    z = SHELF.bottom_z + 0.05
-    push = torch.tensor([[0.70, -0.066, z, 0.0, 0.10, 0.0]], dtype=scene.poses.dtype)
-    y0 = scene.poses[:, 1, 3]
-    moved = KinematicPushDynamics().predict(scene.poses, scene.params, push)[0, :, 1, 3] - y0
-    assert moved.tolist() == pytest.approx([0.09, 0.06, 0.01, 0.0], abs=1e-6)
-    alone = KinematicPushDynamics(chain=False).predict(scene.poses, scene.params, push)
-    assert (alone[0, :, 1, 3] - y0).tolist() == pytest.approx([0.09, 0, 0, 0], abs=1e-6)
 
 
 def test_sqpdnet_dynamics_in_a_scene_larger_than_the_net_takes():
