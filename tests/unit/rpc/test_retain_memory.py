@@ -41,7 +41,8 @@ def _faults(mode: str) -> int:
 )
 def test_retained_memory_is_not_faulted_in_again():
     default, retained = _faults("default"), _faults("retain")
-    # Measured: default ~36,000 (the worker's arena hands its heap back after each round and
-    # faults ~1,800 pages in again), retained ~350.
+    # Measured: default ~35,000-37,000 (the worker's arena hands its heap back after each round
+    # and faults ~1,800 pages in again), retained 1-5, and once in eight runs with both cores
+    # busy ~2,100 (one heap faulted in once, not every round); a 10x margin keeps that green.
     assert default > 20 * 500, default
-    assert retained * 20 < default, (retained, default)
+    assert retained * 10 < default, (retained, default)
