@@ -6,14 +6,22 @@ an RTX 3090).
 Scenarios (:mod:`sqmanip.search.scenarios`) are generated once per object count from seeds
 ``--seed, --seed + 1, ...`` (discarded ones skipped) and shared by all methods; a change to the
 arm check changes which scenarios are kept, so ``--save-scenarios F`` at one commit and
-``--scenarios F`` at another compare two versions on the same scenes. Episodes run in
+``--scenarios F`` at another compare two versions on the same scenes. An episode replays step
+for step on one machine, but a committed run need not replay in another session: the saved
+seed-300/500 scenes grasped 29 of 54 at 6 and 8 objects in one session against the 34 committed
+from an earlier one with the same planner, and only 53 of 124 6-8 object episodes ended alike
+(``search_r_sfg_*_rerun.json``); small numeric differences grow over the closed loop
+(simulator, recognition, sampling). Compare two versions in the same session, on the same
+machine, and read a paired difference of a few episodes in 54 as noise. Episodes run in
 ``--workers`` processes (one simulator and planner per process, 1 torch thread each) or, with
 ``--ray-address``, as Ray tasks on a cluster (``pip install ray``; the full 180 episodes per cell
-of the thesis). Pushes are predicted with the kinematic push model, or with SQPD-Net from a
+of the thesis). The R- methods recognize with the recognition network refined by the fitter
+(:data:`sqmanip.search.episode.RECOGNITION`; ``benchmarks.search_recognition`` compares the
+methods on the shelf). Pushes are predicted with the kinematic push model, or with SQPD-Net from a
 checkpoint directory (``--dynamics models/sqpdnet``, the thesis' choice). The kinematic model is
-the default because it measured better here: R-Search-for-Grasp at 6 and 8 objects on the saved
-seed-300/500 scenarios, 34 of 54 grasped against 30 with SQPD-Net (found 44 against 43), in
-half to two thirds of the planning time per decision
+the default because it measured no worse here (within the replay noise above) in half to two
+thirds of the planning time per decision: R-Search-for-Grasp at 6 and 8 objects on the saved
+seed-300/500 scenarios, 34 of 54 grasped against 30 with SQPD-Net (found 44 against 43)
 (``benchmarks/results/search_r_sfg_6_8_seed*_sqpdnet.json``). Once the target is visible,
 ``g(x*)`` counts only the grasps the simulator's own IK and collision checks accept
 (:class:`sqmanip.search.execution.SimGraspCheck`), and scenarios whose target no such grasp
