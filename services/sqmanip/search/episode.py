@@ -6,10 +6,11 @@ when more than 100 of its pixels are in the segmentation image (5.5.1); recogniz
 surrounding objects (the target's pixels removed) -- ground-truth shapes for the oracle (O-)
 methods, the perception :class:`~sqmanip.perception.pipeline.Recognizer` on the point cloud for
 the R- methods (``method='hybrid'``: the recognition network, as in C.1, refined by the fitter;
-see :data:`RECOGNITION`); ask :meth:`SearchPlanner.decide` for the next action; execute the push or the
-pick-and-place in the simulator. When the planner answers ``grasp`` (visible and graspable) the
-target is grasped and lifted (``Simulator.grasp``); success means it is held. The take-out path
-is the reversed 30 cm approach, whose afterimage ``g`` already checked collision-free (C.3).
+see :data:`RECOGNITION`); ask :meth:`SearchPlanner.decide` for the next action; execute the push
+or the pick-and-place in the simulator. When the planner answers ``grasp`` (visible and
+graspable) the target is grasped and lifted (``Simulator.grasp``); success means it is held. The
+take-out path is the reversed 30 cm approach, whose afterimage ``g`` already checked
+collision-free (C.3).
 
 Grasp executability. ``g`` (C.3) checks the afterimage of the gripper and links 6-7 only;
 the simulator also solves the IK of the pre-grasp, grasp and lift poses (from its home
@@ -74,11 +75,12 @@ RECOGNITION = "hybrid"
 """Recognition method of the R- methods. On 12 saved 8-object shelf scenes (75 surrounding
 objects the gripper's 7.5 cm could hold) the optimisation fit alone made 21 too wide to grasp
 (boxes came out 1.3 cm wider on average: rounded corners and an amodal back that reaches too
-far), the network refined by the fitter 9 (``python -m benchmarks.search_recognition``). R-Search-
-for-Grasp at 6 and 8 objects on the saved seed-300/500/700 scenes, paired in one session: 66 of
-124 grasped against 61 (17 won, 12 lost, ``benchmarks/results/search_r_sfg_*_hybrid.json``),
-fewer refused actions (0.63 against 0.82 per episode), and 20 of 36 against 18 on new seed-900
-scenes (7 won, 5 lost); about 0.3 s instead of 0.1 s of recognition per step."""
+far), the network refined by the fitter 9 (``python -m benchmarks.search_recognition``).
+R-Search-for-Grasp at 6 and 8 objects on the saved seed-300/500/700 scenes, paired in one
+session: 66 of 124 grasped against 61 (17 won, 12 lost,
+``benchmarks/results/search_r_sfg_*_hybrid.json``), fewer refused actions (0.63 against 0.82
+per episode), and 20 of 36 against 18 on new seed-900 scenes (7 won, 5 lost); about 0.3 s
+instead of 0.1 s of recognition per step."""
 
 NOTHING_MOVED = "no object moved 5 mm"
 """Appended to the message of an executed action that changed nothing."""
