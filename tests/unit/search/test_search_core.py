@@ -418,14 +418,27 @@ def test_a_seen_target_is_never_in_the_way_of_a_pushed_object():
         assert d.objective == 0.0, (seed, d.objective)
 
 
-def test_poses_near_an_executed_push_are_forgotten():
-    """After a push the runner forgets what it saw empty along the push's path (the target
-    may have been shoved there), and only there."""
-    from sqmanip.search.episode import _near_push
+def test_a_push_forgets_only_where_it_may_have_shoved_the_target(models):
+    """After a push the runner forgets what it saw empty where the pushed object slid, but
+    only when the slide crossed a pose where the target may have stood (f = 1): a slide over
+    space seen empty met no target."""
+    from types import SimpleNamespace
 
-    xy = torch.tensor([[0.60, 0.00], [0.60, 0.12], [0.60, 0.21], [0.80, 0.05], [0.60, -0.12]])
-    near = _near_push(xy, {"start": [0.60, 0.0, 0.25], "displacement": [0.0, 0.10, 0.0]}, 0.05)
-    assert near.tolist() == [True, True, False, False, False]
+    from sqmanip.search.episode import _shoved_to
+
+    grid, em, _ = models
+    objs = [box(0.62, -0.10, 0.05, 0.05, 0.12)]
+    push = {"object": 0, "displacement": [0.0, 0.16, 0.0]}
+    on_path, ahead = idx_near(grid, 0.62, -0.02), idx_near(grid, 0.62, 0.06)
+    away, behind = idx_near(grid, 0.62, 0.18), idx_near(grid, 0.78, -0.02)
+    f = np.zeros(len(grid))
+    f[[away, behind]] = 1.0  # the target may stand off the slide only
+    d = SimpleNamespace(params=push, f_map=f)
+    assert not _shoved_to(em, objs, d, 0.01).any()
+    f[on_path] = 1.0  # ... and on it: the slide may have carried it to its end
+    forgotten = _shoved_to(em, objs, SimpleNamespace(params=push, f_map=f), 0.01)
+    assert forgotten[[on_path, ahead]].all()
+    assert not forgotten[[away, behind]].any()
 
 
 def test_a_seen_targets_keep_out_disc_stands_where_the_target_stands(models):
