@@ -531,28 +531,6 @@ def test_predicted_actions_skip_the_ones_the_robot_refused():
     assert not any(isinstance(a, Push) for a in drawn)
 
 
-def test_a_predicted_scene_with_one_valid_action_always_yields_it():
-    """A later action is a uniform draw from the valid (object, type) pairs (5.4.4): where
-    only one pair is valid it is found every time, not only when a few random draws hit it
-    (8 draws from these 10 pairs miss the one valid in 43% of the calls)."""
-    from sqmanip.search import ActionSampler
-    from sqmanip.search.actions import Push
-
-    planner = SearchPlanner(KinematicPushDynamics(), None, CFG)
-    planner._shelf = SHELF
-    sampler = ActionSampler(SHELF, CFG, target_height=0.12)
-    objs = [box(0.62, y, 0.04, 0.05, 0.12) for y in (-0.24, -0.12, 0.0, 0.12, 0.24)]
-    state = SceneState.from_objects(objs)
-
-    def only_pushes_of_2(a):  # the robot's refusals: everything but pushing object 2
-        return not (isinstance(a, Push) and a.obj == 2)
-
-    rng = np.random.default_rng(0)
-    drawn = [planner._one_action(state, sampler, rng, None, only_pushes_of_2) for _ in range(30)]
-    assert all(isinstance(a, Push) and a.obj == 2 for a in drawn)
-    assert {a.direction for a in drawn} == {-1, 1}
-
-
 def test_a_decision_weighs_n_sequences_valid_first_actions_when_most_draws_are_refused():
     """5.4.4 samples the 30 sequences from valid actions: draws the robot refused before (or
     cannot execute) are replaced by new draws, not dropped, so a decision still weighs
