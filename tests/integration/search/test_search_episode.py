@@ -190,11 +190,11 @@ def test_the_arms_swept_points_meet_the_box_that_blocks_a_grasp_and_not_once_it_
     assert refused.any() and not (now & refused).any()
     arm = SweptArm.pack(np.arange(len(poses)), check.swept(poses))
     truth = SceneState.from_objects([sim.get_state().objects[0].superquadric])
-    assert (arm.blocked(truth, torch.tensor([0]), len(poses))[refused] == 1).all()
+    assert arm.hits(truth, torch.tensor([0]), len(poses))[0, refused].all()
     far = truth.poses.clone()
     far[0, :2, 3] = torch.tensor([0.6, -0.28])
     gone = truth.with_poses(far)
-    assert (arm.blocked(gone, torch.tensor([0]), len(poses)) == 0).all()
+    assert not arm.hits(gone, torch.tensor([0]), len(poses)).any()
 
 
 def test_recognized_boxes_on_the_shelf_keep_their_size(sim):

@@ -375,6 +375,27 @@ def test_a_moved_object_blocks_the_grasps_whose_arm_sweep_it_enters():
     assert extra.tolist() == [0, 0, 0, 0]
 
 
+def test_an_object_the_robots_plan_passed_is_no_new_blocker_where_it_stays_in_the_sweep():
+    """The swept points are tested against the grown, recognized shapes, so an object can
+    enter them where the robot's own plan passed it (it named no blocker). Moved 5 cm and still
+    in those points, it is no new obstacle of that grasp (before, every such push raised ``J``
+    and none looked better than another, seed 8701); moved into the points of another grasp it
+    is."""
+    from sqmanip.search.mpc import SweptArm, _unblocked
+
+    scene = SceneState.from_objects([box(0.7, 0.1, 0.05, 0.05, 0.1)])
+    moved = SceneState.from_objects([box(0.7, 0.15, 0.05, 0.05, 0.1)])
+    z = SHELF.bottom_z + 0.05
+    both = np.array([[0.7, 0.13, z]])  # inside the box before and after
+    ahead = np.array([[0.7, 0.18, z]])  # inside it after only
+    arm = SweptArm.pack(np.array([0, 1]), [both, ahead])
+    ok = torch.tensor([True, True])
+    _, _, extra = _unblocked((3, ok), {0: frozenset(), 1: frozenset()}, scene, arm, moved)
+    assert extra.tolist() == [0, 1]
+    _, _, extra = _unblocked((3, ok), {0: frozenset({0}), 1: frozenset()}, scene, arm, moved)
+    assert extra.tolist() == [1, 1]  # named by the plan: still in its way
+
+
 def test_a_blocker_beside_the_seen_target_is_pushed_even_where_the_pusher_sweeps_it():
     """The robot names a wide box beside the seen target as what blocks its every grasp. No
     push of it keeps the hand off the target's disc and it is too wide to pick, so every
