@@ -462,6 +462,32 @@ def test_a_push_forgets_only_where_it_may_have_shoved_the_target(models):
     assert not forgotten[[away, behind]].any()
 
 
+def test_a_target_seen_then_hidden_again_is_looked_for_only_where_it_stood(models):
+    """``TargetMemory``: what images showed empty stays out of the prior; once the target was
+    seen, a moved object that hides it again leaves the search only the poses within 3 cm of
+    where it stood (the target stands still), until a push may have shoved it elsewhere."""
+    from sqmanip.search.episode import TargetMemory
+
+    grid, _, _ = models
+    memory = TargetMemory(grid, 0.03)
+    assert memory.prior() is None
+    empty = torch.zeros(len(grid), dtype=torch.bool)
+    empty[idx_near(grid, 0.62, -0.10)] = True
+    memory.observe(empty)
+    assert memory.prior().sum() == len(grid) - 1
+    pose = np.eye(4)
+    pose[:3, 3] = (0.713, 0.118, SHELF.bottom_z + TARGET.size[2])
+    memory.observe(torch.zeros(len(grid), dtype=torch.bool), pose)
+    left = memory.prior()
+    near = (grid.xy - torch.tensor([0.713, 0.118], dtype=grid.xy.dtype)).norm(dim=-1) <= 0.03
+    assert left[grid.nearest(pose)] and torch.equal(left, near)
+    assert 1 < int(left.sum()) < 10
+    shoved = torch.zeros(len(grid), dtype=torch.bool)
+    shoved[idx_near(grid, 0.62, -0.10)] = True
+    memory.forget(shoved)
+    assert torch.equal(memory.prior(), near | shoved)
+
+
 def test_a_seen_targets_keep_out_disc_stands_where_the_target_stands(models):
     """Once seen, the target is kept clear of at its observed pose, not at its nearest grid
     pose (up to half a cell's diagonal off, more than the keep-out margin)."""
