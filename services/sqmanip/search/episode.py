@@ -443,7 +443,7 @@ class TargetMemory:
     step's ``f`` is at most :meth:`prior` (the non-increasing uncertainty of 5.4.2 across real
     steps)."""
 
-    def __init__(self, grid: PoseGrid, target_radius: float = 0.03) -> None:
+    def __init__(self, grid: PoseGrid, target_radius: float) -> None:
         self.grid = grid
         self.target_radius = float(target_radius)
         """Once seen, the target is looked for within this distance (m) of where it stood."""

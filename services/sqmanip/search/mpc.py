@@ -492,6 +492,7 @@ class SweptArm:
 
     points: torch.Tensor
     owner: torch.Tensor
+    _now: torch.Tensor | None = dataclasses.field(default=None, repr=False)
 
     @classmethod
     def pack(cls, candidates: np.ndarray, points: Sequence[np.ndarray]) -> SweptArm:
@@ -500,6 +501,14 @@ class SweptArm:
         )
         pts = np.concatenate([np.asarray(p, np.float64).reshape(-1, 3) for p in points])
         return cls(torch.as_tensor(pts, dtype=torch.float32), torch.as_tensor(owner).long())
+
+    def hits_now(self, scene: SceneState, which: torch.Tensor, n: int) -> torch.Tensor:
+        """:meth:`hits` of the objects ``which`` of the current ``scene`` (the one this sweep was
+        packed for: it does not change within a decision), computed once for all its objects
+        instead of again for every predicted scene of the rollouts."""
+        if self._now is None:
+            self._now = self.hits(scene, torch.arange(len(scene)), n)
+        return self._now[which]
 
     def hits(self, state: SceneState, which: torch.Tensor, n: int) -> torch.Tensor:
         """``(len(which), n)``: whether object ``which[m]`` of ``state`` (grown by
@@ -559,7 +568,7 @@ def _unblocked(
         for k, objs in blockers.items():
             for m, b in enumerate(which.tolist()):
                 named[m, k] = b in objs
-        before = swept.hits(scene, which, n)
+        before = swept.hits_now(scene, which, n)
         extra += (swept.hits(state, which, n) & (named | ~before)).sum(0)
     return i, ok, extra
 
