@@ -855,7 +855,7 @@ class Simulator:
     def pick_and_place(self, grasp_pose, width: float, place_pose) -> ActionResult:
         """Grasp at ``grasp_pose`` and release with the tool at ``place_pose`` (both tool poses,
         world): the object moves by ``place_pose @ inv(grasp_pose)``. Success = the object was
-        grasped and rests within 3 cm of that target after release."""
+        grasped and rests within 3 cm of where that puts it after release."""
         r = self._require_robot()
         grasp_pose = as_pose(grasp_pose, "grasp_pose")
         place_pose = as_pose(place_pose, "place_pose")
@@ -884,7 +884,7 @@ class Simulator:
         body = self._bodies[held]
         T_obj = sc.pose_matrix(*p.getBasePositionAndOrientation(body, physicsClientId=self.client))
         T_tool = self.kin.fk(r.q())
-        target = place_pose @ np.linalg.inv(T_tool) @ T_obj
+        planned = place_pose @ np.linalg.inv(T_tool) @ T_obj
         r.move_joints(q_pre_place)
         r.move_joints(q_place, speed=0.15)
         r.actuate_gripper(width, max_time=0.5)
@@ -892,10 +892,10 @@ class Simulator:
         r.move_joints(self.home)
         self._settle(self._bodies)
         pos = np.asarray(p.getBasePositionAndOrientation(body, physicsClientId=self.client)[0])
-        err = float(np.linalg.norm(pos[:2] - target[:2, 3]))
+        err = float(np.linalg.norm(pos[:2] - planned[:2, 3]))
         ok = err < 0.03
         return self._result(
-            ok, f"object {held} placed {err * 100:.1f} cm from the target", before, t0
+            ok, f"object {held} placed {err * 100:.1f} cm from its planned spot", before, t0
         )
 
     def _floor_z(self) -> float:
