@@ -450,7 +450,7 @@ class SearchPlanner:
 
         Its picks are not asked of the robot (first actions are: ``pick_ok`` in
         :meth:`decide`), so a sequence may count on a pick the robot refuses: scenario seed
-        6709 nudged an object that blocked the arm's path to another 8 times, each nudge
+        6709 nudged an object that blocked the arm's path to another 6 times, each nudge
         predicted to free that pick. Asking it (a refused pick passing once the objects the
         robot named left the points its arm sweeps) grasped 34 of 60 fresh scenes against 33
         (``benchmarks/results/search_r_sfg_6_8_seed1100_30x_pickcheck.json``); together with
