@@ -80,7 +80,8 @@ class SearchConfig:
     or less, so a blocker can be left unpickable (scenario seed 8310). Picking objects up to
     7.75 cm (the target kept at 7.5 cm) grasped 71 of 120 fresh scenes against 70, paired: 33
     against 30 at 8 objects, 38 against 40 at 6
-    (``benchmarks/results/search_r_sfg_*obj_seed1{1,3}00_30x_pickwidth.json``)."""
+    (``benchmarks/results/search_r_sfg_*obj_seed1{1,3}00_30x_pickwidth.json``), so both keep
+    7.5 cm."""
     approach_distance: float = 0.30
     n_gripper_points: int = 2048
     """n_gr points on the afterimage of the gripper and links 6-7 (C.3.11)."""
