@@ -261,9 +261,19 @@ class ActionSampler:
     # --- helpers ---------------------------------------------------------------------------
 
     def _others(self, scene: SceneState, i: int) -> Obstacles:
+        """The shelf's boards and every object but ``i``, the objects' level half sizes less
+        :attr:`SearchConfig.action_tolerance` (their heights are kept)."""
         s = scene.without(i)
+        params = s.params.clone()
+        tol = self.config.action_tolerance
+        if tol > 0 and len(s):
+            vertical = s.poses[:, 2, :3].abs().argmax(-1)
+            level = torch.ones_like(params[:, :3], dtype=torch.bool)
+            level[torch.arange(len(s)), vertical] = False
+            sizes = params[:, :3].abs()
+            params[:, :3] = torch.where(level, (sizes - tol).clamp(min=0.005), sizes)
         return Obstacles.from_tensors(
-            torch.cat([self.boards.params, s.params]),
+            torch.cat([self.boards.params, params]),
             torch.cat([self.boards.poses, s.poses]),
             torch.cat([self.boards.kinds, s.kinds]),
         )

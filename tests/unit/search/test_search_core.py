@@ -7,6 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 import torch
+from sqmanip.errors import ValidationError
 from sqmanip.geometry import Superquadric
 from sqmanip.search import (
     ExistenceModel,
@@ -239,6 +240,25 @@ def test_pusher_path_keeps_out_of_where_the_target_may_stand():
     assert [p[0] for p in sampler.push_poses(scene, 0, far)] == [1, -1]
     low = ActionSampler(SHELF, CFG, target_height=0.01)
     assert [p[0] for p in low.push_poses(scene, 0, beside)] == [1, -1]
+
+
+def test_action_tolerance_opens_a_gap_the_hand_just_misses():
+    """A neighbour 1.75 cm from the pushed box blocks the hand at both push starts with exact
+    shapes; with the other objects' level half sizes 5 mm smaller (recognized boxes run wide)
+    the push to -y is free, and a neighbour 1 cm away still blocks it."""
+    from sqmanip.search import ActionSampler
+
+    exact = ActionSampler(SHELF, dataclasses.replace(CFG, action_tolerance=0.0))
+    tolerant = ActionSampler(SHELF, dataclasses.replace(CFG, action_tolerance=0.005))
+    pushed = box(0.60, 0.0, 0.06, 0.06, 0.15)
+    near = SceneState.from_objects([pushed, box(0.60, -0.0775, 0.06, 0.06, 0.15)])
+    assert exact.push_poses(near, 0) == []
+    assert [p[0] for p in tolerant.push_poses(near, 0)] == [-1]
+    nearer = SceneState.from_objects([pushed, box(0.60, -0.07, 0.06, 0.06, 0.15)])
+    assert tolerant.push_poses(nearer, 0) == []
+    for bad in (-0.001, float("nan")):
+        with pytest.raises(ValidationError, match="action_tolerance"):
+            SearchConfig(action_tolerance=bad)
 
 
 def test_push_risk_is_the_share_of_keep_out_discs_a_push_may_touch():
