@@ -261,6 +261,43 @@ def test_action_tolerance_opens_a_gap_the_hand_just_misses():
             SearchConfig(action_tolerance=bad)
 
 
+def test_keep_out_contacts_agree_with_every_point_tested():
+    """The cluster culling of the keep-out test changes no answer: random hand poses and discs,
+    the afterimage and the closed hand, plain and swept, against a test of every point."""
+    from sqmanip.search import ActionSampler
+    from sqmanip.search.actions import _disc_contacts
+
+    sampler = ActionSampler(SHELF, CFG, target_height=0.12)
+    top = SHELF.bottom_z + 0.12
+    g = torch.Generator().manual_seed(0)
+    touched = []
+    for _ in range(40):
+        P, Q = 12, 30
+        yaw = (torch.rand(P, generator=g) - 0.5) * 3.0
+        c, s = torch.cos(yaw), torch.sin(yaw)
+        poses = torch.eye(4).repeat(P, 1, 1)
+        poses[:, :3, :3] = torch.stack(  # gripper z level along yaw, x down
+            [torch.stack([0 * c, 0 * c, -torch.ones(P)], -1),
+             torch.stack([-s, c, 0 * c], -1),
+             torch.stack([c, s, 0 * c], -1)], -1)  # fmt: skip
+        poses[:, :3, 3] = torch.stack(
+            [0.5 + 0.35 * torch.rand(P, generator=g), 0.6 * torch.rand(P, generator=g) - 0.3,
+             SHELF.bottom_z + 0.15 * torch.rand(P, generator=g)], -1)  # fmt: skip
+        discs = torch.stack(
+            [0.5 + 0.35 * torch.rand(Q, generator=g), 0.6 * torch.rand(Q, generator=g) - 0.3,
+             torch.full((Q,), 0.04)], -1)  # fmt: skip
+        for pts in (sampler.after, sampler.closed):
+            world = pts[0].reshape(-1, 3).double() @ poses[:, :3, :3].double().mT
+            world = world + poses[:, None, :3, 3].double()
+            for sweep in (False, True):
+                every = (_disc_contacts(world[..., :2], discs.double(), sweep)
+                         & (world[..., 2:] < top)).any(1)  # fmt: skip
+                got = sampler._keep_out_contacts(pts, poses, discs, sweep)
+                assert torch.equal(got, every)
+                touched.append(got.float().mean())
+    assert 0.01 < float(torch.stack(touched).mean()) < 0.9  # both answers are exercised
+
+
 def test_push_risk_is_the_share_of_keep_out_discs_a_push_may_touch():
     """The risk of a push is the share of the discs where the target may stand that the
     pushed object's slide or the hand's way in meets: 1/2 for a long push towards one of two
