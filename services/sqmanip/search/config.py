@@ -134,10 +134,13 @@ class SearchConfig:
     fitter alike) while their heights are right, so on a crowded shelf they closed the last
     gaps a hand fits in, and episodes ended with "no valid action" while the target was in
     view (scenario seeds 9111, 9312). The robot checks each action against the objects as
-    they are and refuses a colliding one without a step spent (ours).
-    R-Search-for-Grasp, paired against 0 on fresh scenes: 8 objects 55 of 90 grasped against
-    43 (15 won, 3 lost; seeds 1100, 1300 and, for confirmation, 1500), 6 objects 44 of 60
-    against 40 (9 won, 5 lost) (``benchmarks/results/search_r_sfg_*_tolerance.json``)."""
+    they are and refuses a colliding one without a step spent (up to
+    :attr:`~sqmanip.search.episode.EpisodeRunner.max_replans` per step). The O- methods'
+    true shapes shrink too, as for ``object_tolerance`` (ours). R-Search-for-Grasp, paired
+    against 0 on fresh scenes: 8 objects 55 of 90 grasped against 43 (15 won, 3 lost; seeds
+    1100, 1300 and, for confirmation, 1500), 6 objects 44 of 60 against 40 (9 won, 5 lost),
+    4 and 2 objects 23 and 26 of 30 against 22 and 26
+    (``benchmarks/results/search_r_sfg_*_tolerance.json``)."""
     risk_weight: float = 0.0
     """When no push keeps out of where the target may stand (the fallback pass of
     :meth:`SearchPlanner.decide`), a push whose hand's way in or whose pushed object's slide
