@@ -30,6 +30,7 @@ cell): camera image, f and f*g maps and the chosen action per step, written with
 library.
 
     python -m benchmarks.search [--episodes N] [--objects 2 4 6 8] [--workers W] [--quick]
+    python -m benchmarks.search --scenarios F --seed S --episodes N --only 9105 9322  # replay two
 """
 
 from __future__ import annotations
@@ -194,6 +195,7 @@ def run_episode(task: dict) -> dict:
     import torch
     from sqmanip.search import SearchConfig, SearchPlanner
     from sqmanip.search.episode import NOTHING_MOVED, EpisodeRunner
+    from sqmanip.search.mpc import LAST_RESORT
     from sqmanip.search.scenarios import ShelfScenario
     from sqmanip.sim import Simulator
 
@@ -239,6 +241,7 @@ def run_episode(task: dict) -> dict:
         "plan_ms_max": float(np.max(plan)) if plan else 0.0,
         "refused": sum(e.message.startswith("refused") for e in res.events),
         "idle": sum(e.message.endswith(f"({NOTHING_MOVED})") for e in res.events),
+        "last_resort": sum(LAST_RESORT in e.params.get("reason", "") for e in res.events),
         "grasp_check_ms": float(
             np.mean(
                 [
@@ -314,7 +317,7 @@ def config_overrides(items: list[str]) -> dict[str, Any]:
         elif isinstance(default, (int, float, str)):
             out[name] = type(default)(value)
         elif isinstance(default, tuple):
-            out[name] = tuple(float(v) for v in value.split(","))
+            out[name] = tuple(float(v) for v in value.split(",") if v)
         else:
             raise ValueError(f"--set {item!r}: {name} cannot be set from the command line")
     try:
@@ -356,6 +359,15 @@ def main(argv=None) -> int:
         "two code versions compared on the same scenes",
     )
     ap.add_argument("--save-scenarios", default=None, help="write the scenarios used (JSON)")
+    ap.add_argument(
+        "--only",
+        type=int,
+        nargs="+",
+        default=None,
+        metavar="SEED",
+        help="run only the scenarios with these seeds, each with the episode seed it has in the "
+        "full run: replays chosen episodes of a run exactly, e.g. the ones a change can affect",
+    )
     args = ap.parse_args(argv)
     try:
         overrides = config_overrides(args.set)
@@ -396,6 +408,8 @@ def main(argv=None) -> int:
     for n in args.objects:
         for m in args.methods:
             for k, sc in enumerate(scen[n]):
+                if args.only is not None and sc["seed"] not in args.only:
+                    continue
                 png = None
                 if k == 0 and not args.no_png:
                     png = os.path.join(PNG_DIR, f"{m}_{n}obj_seed{sc['seed']}.png")
@@ -466,7 +480,8 @@ def main(argv=None) -> int:
     print(f"episode endings: {reasons}")
     print(
         f"actions the simulator refused: {sum(r['refused'] for r in results)}, executed but "
-        f"moved nothing: {sum(r.get('idle', 0) for r in results)}, in "
+        f"moved nothing: {sum(r.get('idle', 0) for r in results)}, last-resort decisions: "
+        f"{sum(r.get('last_resort', 0) for r in results)}, in "
         f"{len(results)} episodes; grasp executability check (SimGraspCheck) "
         f"{np.mean([r['grasp_check_ms'] for r in results if r['grasp_check_ms'] > 0] or [0]):.0f}"
         " ms per visible step"

@@ -89,6 +89,7 @@ class SearchPlanner:
         self.grasp_source = GraspSource(grasp_planner)
         self._models: dict[Any, tuple[PoseGrid, FGEvaluator, ActionSampler]] = {}
         self._corners: np.ndarray | None = None
+        self._last_resort: dict[Any, list[ActionSampler]] = {}
 
     def models(self, shelf: ShelfSpec, target: TargetSpec, camera: PinholeCamera):
         key = (
@@ -155,7 +156,8 @@ class SearchPlanner:
         sequence of the others makes it graspable in a predicted scene: a blocker beside the
         target may be movable only so
         (ours). A seen target is never in the way of a pushed object: only the hand may pass
-        by it."""
+        by it. When even those leave no valid action, which ends the episode, the decision
+        tries the last resort of :attr:`SearchConfig.last_resort_tolerances` first."""
         if target_visible and target_pose is None:
             raise ValidationError("target_pose is required when target_visible is true")
         rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
@@ -251,13 +253,13 @@ class SearchPlanner:
                     checked[key] = bool(grasp_check(T.double().numpy()[None], True)[0])
                 return checked[key]
 
-        def sample(hand: bool, slide: bool) -> list[Action]:
+        def sample(hand: bool, slide: bool, picks_ok=pick_ok, smp=sampler) -> list[Action]:
             # draw until n_sequences pass the robot's limits and the refusals (5.4.4 samples
             # from valid actions): dropping the rest after one draw left as few as 4 sequences
-            cands = sampler.candidates(scene, keep_out, hand, pick_ok, slide)
+            cands = smp.candidates(scene, keep_out, hand, picks_ok, slide)
             out: list[Action] = []
             for _ in range(SAMPLE_ROUNDS):
-                drawn = sampler.sample(scene, rng, cfg.n_sequences, keep_out, cands)
+                drawn = smp.sample(scene, rng, cfg.n_sequences, keep_out, cands)
                 out += [a for a in drawn if self.allowed(a, shelf, reject)]
                 if not drawn or len(out) >= cfg.n_sequences:
                     break
@@ -268,12 +270,29 @@ class SearchPlanner:
         # (risk_weight); picks and places always keep out of it. A seen target is never in the
         # pushed object's way: it would be shoved along, and the push model (which moves the
         # pushed object only) cannot tell where to
-        first = sample(True, True)
-        swept = not first and bool(keep_out.numel())
-        if swept:
-            first = sample(False, True)
+        def valid_first(smp: ActionSampler, picks_ok) -> tuple[list[Action], bool]:
+            first = sample(True, True, picks_ok, smp)
+            if first or not keep_out.numel():
+                return first, False
+            first = sample(False, True, picks_ok, smp)
             if not first and not target_visible:
-                first = sample(False, False)
+                first = sample(False, False, picks_ok, smp)
+            return first, True
+
+        first, swept = valid_first(sampler, pick_ok)
+        last_resort = not first
+        if last_resort:
+            # the last resort before "no valid action" ends the episode: picks from the first
+            # grasp that clears the floor (not just the first grasp, see ActionSampler.pick),
+            # then looser clearances (SearchConfig.last_resort_tolerances)
+            def high_pick_ok(T: torch.Tensor) -> bool:
+                return self.clears_floor(T, shelf) and (pick_ok is None or pick_ok(T))
+
+            for smp in [sampler, *self.last_resort_samplers(shelf, target_spec, camera)]:
+                first, _ = valid_first(smp, high_pick_ok)
+                if first:
+                    swept = True
+                    break
         times["sample"] = (time.perf_counter() - t) * 1e3
         if not first:
             times["total"] = (time.perf_counter() - t0) * 1e3
@@ -334,8 +353,29 @@ class SearchPlanner:
             float(costs[best]),
             times,
             action=a,
-            reason=f"best of {len(first)} sequences",
+            reason=f"best of {len(first)} sequences" + (f" ({LAST_RESORT})" if last_resort else ""),
         )
+
+    def last_resort_samplers(self, shelf, target, camera) -> list[ActionSampler]:
+        """Action samplers with the looser clearances of
+        :attr:`SearchConfig.last_resort_tolerances`."""
+        key = (shelf, target, camera.pose.tobytes())
+        if key not in self._last_resort:
+            self._last_resort[key] = [
+                ActionSampler(
+                    shelf,
+                    dataclasses.replace(
+                        self.config,
+                        action_tolerance=tol,
+                        push_gap=self.config.last_resort_push_gap,
+                    ),
+                    self.gripper,
+                    grasp_source=self.grasp_source,
+                    target_height=2 * target.size[2],
+                )
+                for tol in self.config.last_resort_tolerances
+            ]
+        return self._last_resort[key]
 
     def target_grasps(
         self, ev: FGEvaluator, i: int, target_pose: np.ndarray
@@ -416,7 +456,6 @@ class SearchPlanner:
         keeps the hand (palm half width ``palm_size[1] / 2`` across the push) off the side
         walls and its tool inside the shelf, a pick-and-place keeps the open gripper
         ``floor_clearance`` above the floor at the grasp and the place pose."""
-        cfg = self.config
         g = self.gripper
         half_w = shelf.inner_width / 2
         if isinstance(a, Push):
@@ -426,17 +465,20 @@ class SearchPlanner:
                 if abs(p[1]) > y_lim or not (x_lo <= p[0] <= x_hi):
                     return False
             return True
+        for T in (a.grasp_pose, a.place_pose):
+            if not self.clears_floor(T, shelf) or abs(T[1, 3]) > half_w - 0.01:
+                return False
+        return True
+
+    def clears_floor(self, T: np.ndarray | torch.Tensor, shelf: ShelfSpec) -> bool:
+        """The open gripper at ``T (4, 4)`` stays ``floor_clearance`` above the floor."""
         if self._corners is None:
             from .graspability import gripper_corners
 
-            self._corners = gripper_corners(g).numpy()
-        for T in (a.grasp_pose, a.place_pose):
-            z = self._corners @ T[:3, :3].T + T[:3, 3]
-            if z[:, 2].min() < shelf.bottom_z + cfg.floor_clearance:
-                return False
-            if abs(T[1, 3]) > half_w - 0.01:
-                return False
-        return True
+            self._corners = gripper_corners(self.gripper).numpy()
+        T = T.double().numpy() if isinstance(T, torch.Tensor) else np.asarray(T, np.float64)
+        z = self._corners @ T[:3, :3].T + T[:3, 3]
+        return bool(z[:, 2].min() >= shelf.bottom_z + self.config.floor_clearance)
 
     def allowed(self, a: Action, shelf: ShelfSpec, reject=None) -> bool:
         """``a`` is :meth:`feasible` and ``reject`` (optional) does not drop it."""
@@ -482,6 +524,10 @@ class SearchPlanner:
                         return a
         return None
 
+
+LAST_RESORT = "last resort"
+"""Marks the reason of a decision whose action came from the last resort of
+:attr:`SearchConfig.last_resort_tolerances`."""
 
 SAMPLE_ROUNDS = 8
 """At most this many draws of ``n_sequences`` first actions per decision (ours)."""

@@ -678,3 +678,46 @@ def test_predicted_picks_use_the_first_grasp_that_has_a_place_spot():
     drawn = [planner._one_action(state, sampler, rng, None) for _ in range(10)]
     assert drawn and all(a is not None for a in drawn)
     assert all(np.allclose(a.grasp_pose, grasps[1].double().numpy()) for a in drawn)
+
+
+def test_a_pick_whose_first_grasp_is_too_low_uses_a_higher_one_before_no_valid_action():
+    """An object's pick is its first collision-free grasp, and the floor is checked after
+    that choice (:meth:`ActionSampler.pick`): a 10 cm box's first grasp is too low, so it had
+    no pick. Before a decision gives up ("no valid action") it picks with the first grasp
+    that clears the floor."""
+    torch.set_num_threads(1)
+    cfg = SearchConfig(resolution=0.04, n_sequences=6, horizon=1, actions="pick_and_place")
+    planner = SearchPlanner(KinematicPushDynamics(), None, cfg)
+    objs = [box(0.62, 0.0, 0.05, 0.05, 0.10)]
+    _, _, sampler = planner.models(SHELF, TARGET, SHELF.camera())
+    low, _ = sampler.pick(SceneState.from_objects(objs), 0, None)
+    assert not planner.clears_floor(low.double().numpy(), SHELF)
+    d = planner.decide(objs, TARGET, SHELF, SHELF.camera(), False, rng=0)
+    assert d.kind == "pick_and_place", d.reason
+    assert planner.clears_floor(d.action.grasp_pose, SHELF)
+    assert planner.clears_floor(d.action.place_pose, SHELF)
+
+
+def test_a_decision_loosens_the_clearances_before_it_finds_no_valid_action():
+    """Two boxes 1 cm apart block each other's pusher at every start (the palm reaches 10 cm
+    along the push). Rather than end the episode with "no valid action", a decision tries
+    again with :attr:`SearchConfig.last_resort_tolerances` (the robot still checks the
+    action against the objects as they are); with none it gives up as before."""
+    torch.set_num_threads(1)
+    cfg = SearchConfig(resolution=0.04, n_sequences=6, horizon=1, actions="push")
+    objs = [box(0.60, 0.0, 0.06, 0.06, 0.15), box(0.60, -0.07, 0.06, 0.06, 0.15)]
+    strict = SearchPlanner(
+        KinematicPushDynamics(), None, dataclasses.replace(cfg, last_resort_tolerances=())
+    )
+    d = strict.decide(objs, TARGET, SHELF, SHELF.camera(), False, rng=0)
+    assert d.kind == "none" and d.reason == "no valid action"
+    d = SearchPlanner(KinematicPushDynamics(), None, cfg).decide(
+        objs, TARGET, SHELF, SHELF.camera(), False, rng=0
+    )
+    assert d.kind == "push", d.reason
+    assert abs(d.action.start[1] - objs[d.action.obj].pose[1, 3]) < 0.03 + 0.01 + 0.012
+    for bad in ((-0.01,), (float("nan"),)):
+        with pytest.raises(ValidationError, match="last_resort_tolerances"):
+            SearchConfig(last_resort_tolerances=bad)
+    with pytest.raises(ValidationError, match="last_resort_push_gap"):
+        SearchConfig(last_resort_push_gap=-0.001)
