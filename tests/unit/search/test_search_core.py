@@ -329,7 +329,13 @@ def test_fallback_pushes_are_priced_by_the_risk_of_shoving_the_target():
     out = {}
     for weight in (0.0, 1000.0):
         cfg = SearchConfig(
-            resolution=0.04, n_sequences=16, horizon=1, actions="push", risk_weight=weight
+            resolution=0.04,
+            n_sequences=16,
+            horizon=1,
+            actions="push",
+            risk_weight=weight,
+            object_tolerance=0.0,  # with wide discs, the slides sweep the poses behind
+            keep_out_margin=0.03,
         )
         planner = SearchPlanner(KinematicPushDynamics(), None, cfg)
         out[weight] = planner.decide(objs, TARGET, SHELF, SHELF.camera(), False, rng=0)
@@ -566,7 +572,14 @@ def test_a_fallback_push_lets_the_hand_pass_where_the_target_may_stand_before_th
     come first: the chosen one is among them; a box slid through a hidden target shoves it."""
     torch.set_num_threads(1)
     objs = [box(0.608, -0.155, 0.057, 0.071, 0.2), box(0.713, 0.202, 0.062, 0.088, 0.15)]
-    cfg = SearchConfig(resolution=0.04, n_sequences=16, horizon=1, actions="push")
+    cfg = SearchConfig(
+        resolution=0.04,
+        n_sequences=16,
+        horizon=1,
+        actions="push",
+        object_tolerance=0.0,  # with wide discs, the slides sweep the poses behind
+        keep_out_margin=0.03,
+    )
     planner = SearchPlanner(KinematicPushDynamics(), None, cfg)
     d = planner.decide(objs, TARGET, SHELF, SHELF.camera(), False, rng=0)
     grid, ev, sampler = planner.models(SHELF, TARGET, SHELF.camera())
@@ -721,3 +734,23 @@ def test_a_decision_loosens_the_clearances_before_it_finds_no_valid_action():
             SearchConfig(last_resort_tolerances=bad)
     with pytest.raises(ValidationError, match="last_resort_push_gap"):
         SearchConfig(last_resort_push_gap=-0.001)
+
+
+def test_an_occluder_slides_aside_past_where_the_target_may_stand_right_behind_it():
+    """f = 1 right behind an object: the target may stand there with the object's estimated
+    back up to fc_shrink + object_tolerance into it. Pushing the object aside does not sweep
+    such a pose (it blocked every push of the occluder, seed 5905); a pose whose target the
+    back reaches farther into, and one ahead of the slide, still stop it."""
+    from sqmanip.search import ActionSampler
+
+    sampler = ActionSampler(SHELF, CFG, target_height=0.12)
+    scene = SceneState.from_objects([box(0.60, 0.0, 0.06, 0.06, 0.15)])
+    r = TARGET.horizontal_radius + CFG.keep_out_margin
+    behind = 0.60 + 0.03 + TARGET.horizontal_radius  # a target touching the box's back
+    for side in (1, -1):
+        touching = torch.tensor([[behind, 0.01 * side, r]])
+        assert sampler.push_distances(scene, 0, side, touching) == [0.05, 0.1, 0.15]
+        deeper = torch.tensor([[behind - 0.01, 0.01 * side, r]])  # 1 cm into the box
+        assert sampler.push_distances(scene, 0, side, deeper) == []
+        ahead = torch.tensor([[0.60, 0.12 * side, r]])  # in the slide's way: 5 cm left
+        assert sampler.push_distances(scene, 0, side, ahead) == [0.05]
