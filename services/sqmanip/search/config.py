@@ -149,7 +149,8 @@ class SearchConfig:
     grasp), then with ``action_tolerance`` loosened to each of these in turn and pushes
     starting ``last_resort_push_gap`` from the object. The robot still checks each action
     against the objects as they are and refuses a colliding one. Only episodes that would end
-    with "no valid action" change (ours). R-Search-for-Grasp: of the 25 committed episodes
+    with "no valid action" change (ours). R-Search-for-Grasp (before the slide rule of
+    :meth:`.actions.ActionSampler.push_distances`): of the 25 committed episodes
     (330, 2 to 8 objects, seed sets 1100 to 1700) that ended so, 7 grasped the target instead
     (2 objects 0 of 3, 4 objects 1 of 5, 6 objects 3 of 7, 8 objects 3 of 10; replayed with
     ``benchmarks.search --only``, ``benchmarks/results/search_r_sfg_seed1*_30x_last_resort.json``);
