@@ -106,13 +106,7 @@ class SearchPlanner:
             grid = make_pose_grid(shelf, target, cfg.resolution, cfg.n_theta)
             ex = ExistenceModel(shelf, target, grid, camera, cfg)
             gm = GraspabilityModel(shelf, target, grid, cfg, self.gripper, self.grasp_source)
-            sampler = ActionSampler(
-                shelf,
-                cfg,
-                self.gripper,
-                grasp_source=self.grasp_source,
-                target_height=2 * target.size[2],
-            )
+            sampler = self._action_sampler(shelf, target, cfg)
             self._models[key] = (grid, FGEvaluator(ex, gm, cfg), sampler)
         return self._models[key]
 
@@ -288,7 +282,7 @@ class SearchPlanner:
             def high_pick_ok(T: torch.Tensor) -> bool:
                 return self.clears_floor(T, shelf) and (pick_ok is None or pick_ok(T))
 
-            for smp in [sampler, *self.last_resort_samplers(shelf, target_spec, camera)]:
+            for smp in [sampler, *self.last_resort_samplers(shelf, target_spec)]:
                 first, _ = valid_first(smp, high_pick_ok)
                 if first:
                     swept = True
@@ -356,24 +350,32 @@ class SearchPlanner:
             reason=f"best of {len(first)} sequences" + (f" ({LAST_RESORT})" if last_resort else ""),
         )
 
-    def last_resort_samplers(self, shelf, target, camera) -> list[ActionSampler]:
+    def _action_sampler(
+        self, shelf: ShelfSpec, target: TargetSpec, config: SearchConfig
+    ) -> ActionSampler:
+        return ActionSampler(
+            shelf,
+            config,
+            self.gripper,
+            grasp_source=self.grasp_source,
+            target_height=2 * target.size[2],
+        )
+
+    def last_resort_samplers(self, shelf: ShelfSpec, target: TargetSpec) -> list[ActionSampler]:
         """Action samplers with the looser clearances of
         :attr:`SearchConfig.last_resort_tolerances`."""
-        key = (shelf, target, camera.pose.tobytes())
+        key = (shelf, target)
         if key not in self._last_resort:
+            cfg = self.config
             self._last_resort[key] = [
-                ActionSampler(
+                self._action_sampler(
                     shelf,
+                    target,
                     dataclasses.replace(
-                        self.config,
-                        action_tolerance=tol,
-                        push_gap=self.config.last_resort_push_gap,
+                        cfg, action_tolerance=tol, push_gap=cfg.last_resort_push_gap
                     ),
-                    self.gripper,
-                    grasp_source=self.grasp_source,
-                    target_height=2 * target.size[2],
                 )
-                for tol in self.config.last_resort_tolerances
+                for tol in cfg.last_resort_tolerances
             ]
         return self._last_resort[key]
 
