@@ -195,7 +195,7 @@ def run_episode(task: dict) -> dict:
     import torch
     from sqmanip.search import SearchConfig, SearchPlanner
     from sqmanip.search.episode import NOTHING_MOVED, EpisodeRunner
-    from sqmanip.search.mpc import LAST_RESORT
+    from sqmanip.search.mpc import LAST_RESORT, STUCK
     from sqmanip.search.scenarios import ShelfScenario
     from sqmanip.sim import Simulator
 
@@ -242,6 +242,7 @@ def run_episode(task: dict) -> dict:
         "refused": sum(e.message.startswith("refused") for e in res.events),
         "idle": sum(e.message.endswith(f"({NOTHING_MOVED})") for e in res.events),
         "last_resort": sum(LAST_RESORT in e.params.get("reason", "") for e in res.events),
+        "stuck": sum(STUCK in e.params.get("reason", "") for e in res.events),
         "grasp_check_ms": float(
             np.mean(
                 [
@@ -481,7 +482,8 @@ def main(argv=None) -> int:
     print(
         f"actions the simulator refused: {sum(r['refused'] for r in results)}, executed but "
         f"moved nothing: {sum(r.get('idle', 0) for r in results)}, last-resort decisions: "
-        f"{sum(r.get('last_resort', 0) for r in results)}, in "
+        f"{sum(r.get('last_resort', 0) for r in results)}, decisions that found no safe gain: "
+        f"{sum(r.get('stuck', 0) for r in results)}, in "
         f"{len(results)} episodes; grasp executability check (SimGraspCheck) "
         f"{np.mean([r['grasp_check_ms'] for r in results if r['grasp_check_ms'] > 0] or [0]):.0f}"
         " ms per visible step"

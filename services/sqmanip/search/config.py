@@ -168,6 +168,19 @@ class SearchConfig:
     fallback pushes are ranked by the objective alone): a shoved target tends to end deeper or
     against a wall, out of every grasp. Off by default: with recognized shapes no setting
     measured better than 0 (``benchmarks.search``, 100 paired episodes; see the issue note)."""
+    escalate_when_stuck: bool = True
+    """When no sampled sequence that keeps out of where the target may stand is predicted to
+    gain anything (the best cost of (5.4.6) is 0), the pushes that may sweep there are sampled
+    as well and compete by the objective, as they do when no safe action exists (ours). Traced
+    cause: the safe actions were pushes and picks of bystanders that change nothing, so the
+    decision kept choosing them and the push of the occluder that would reveal the target
+    never came (scenario seeds 3925, 5923: 8 and 4 decisions in a row at cost 0 until the
+    step limit). R-Search-for-Grasp, paired on fresh scenes against ``False``: seed 2300, 2
+    and 4 objects, 23 and 28 of 30 grasped against 21 and 27 (3 won, 0 lost); seed 2500, 6 and
+    8 objects, 17 and 16 against 17 and 17 (0 won, 1 lost: an episode grasped at step 10 by
+    the old rule) (``benchmarks/results/search_r_sfg_*_seed2{3,5}00_30x*.json``). A small
+    gain, nearly all at 2 and 4 objects, where bystanders are few and a decision more often
+    has nothing safe to do."""
     place_resolution: float = 0.03
     """Spacing of the candidate place spots on the floor (m) (ours)."""
     max_place_spots: int = 64

@@ -148,8 +148,8 @@ class SearchPlanner:
         none, those whose pushed object slides there: a slide through the hidden target shoved
         it against a wall, out of every grasp, seed 2500), or when the target is seen and no
         sequence of the others makes it graspable in a predicted scene: a blocker beside the
-        target may be movable only so
-        (ours). A seen target is never in the way of a pushed object: only the hand may pass
+        target may be movable only so, or when it is hidden and no sequence of the others
+        gains anything (:attr:`SearchConfig.escalate_when_stuck`) (ours). A seen target is never in the way of a pushed object: only the hand may pass
         by it. When even those leave no valid action, which ends the episode, the decision
         tries the last resort of :attr:`SearchConfig.last_resort_tolerances` first."""
         if target_visible and target_pose is None:
@@ -322,12 +322,22 @@ class SearchPlanner:
             )
 
         costs, grasps = rollouts(first)
-        if target_visible and not swept and not grasps.any():
-            # the target is seen and no sequence that keeps off it makes it graspable
-            more = sample(False, True)
-            if more:
-                c, _ = rollouts(more)
-                first, costs = first + more, np.concatenate([costs, c])
+        stuck = False
+        if not swept and keep_out.numel():
+            # the target is seen and no sequence that keeps off it makes it graspable, or it is
+            # hidden and none gains anything (SearchConfig.escalate_when_stuck): the pushes
+            # that may sweep where it stands compete too, the hand's way first
+            if target_visible:
+                stuck, slides = not grasps.any(), (True,)
+            else:
+                stuck, slides = cfg.escalate_when_stuck and costs.min() >= -GAIN_EPS, (True, False)
+            for slide in slides if stuck else ():
+                more = sample(False, slide)
+                if more:
+                    c, _ = rollouts(more)
+                    first, costs = first + more, np.concatenate([costs, c])
+                    if c.min() < -GAIN_EPS:
+                        break
         times["rollout"] = (time.perf_counter() - t) * 1e3
         risk = np.array(
             [sampler.push_risk(scene, a, keep_out) if isinstance(a, Push) else 0.0 for a in first]
@@ -347,7 +357,9 @@ class SearchPlanner:
             float(costs[best]),
             times,
             action=a,
-            reason=f"best of {len(first)} sequences" + (f" ({LAST_RESORT})" if last_resort else ""),
+            reason=f"best of {len(first)} sequences"
+            + (f" ({LAST_RESORT})" if last_resort else "")
+            + (f" ({STUCK})" if stuck and not target_visible else ""),
         )
 
     def _action_sampler(
@@ -530,6 +542,13 @@ class SearchPlanner:
 LAST_RESORT = "last resort"
 """Marks the reason of a decision whose action came from the last resort of
 :attr:`SearchConfig.last_resort_tolerances`."""
+
+STUCK = "nothing safe gained"
+"""Marks the reason of a decision for a hidden target that also sampled the pushes that may
+sweep where it stands (:attr:`SearchConfig.escalate_when_stuck`)."""
+
+GAIN_EPS = 1e-6
+"""A sequence cost (5.4.6) below ``-GAIN_EPS`` is a predicted gain."""
 
 SAMPLE_ROUNDS = 8
 """At most this many draws of ``n_sequences`` first actions per decision (ours)."""

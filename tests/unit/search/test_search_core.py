@@ -754,3 +754,39 @@ def test_an_occluder_slides_aside_past_where_the_target_may_stand_right_behind_i
         assert sampler.push_distances(scene, 0, side, deeper) == []
         ahead = torch.tensor([[0.60, 0.12 * side, r]])  # in the slide's way: 5 cm left
         assert sampler.push_distances(scene, 0, side, ahead) == [0.05]
+
+
+def test_a_decision_that_gains_nothing_safely_weighs_the_pushes_that_may_sweep_the_target():
+    """The two boxes hide the target, and every push of theirs sweeps where it may stand; a
+    third box near the back wall hides nothing, so its pushes keep out and gain nothing. Such
+    a decision used to push that box, step after step (scenario seeds 3925, 5923); with
+    ``escalate_when_stuck`` the pushes of the occluders compete too, and one is chosen for
+    what it reveals."""
+    from sqmanip.search.mpc import STUCK
+
+    torch.set_num_threads(1)
+    objs = [
+        box(0.608, -0.155, 0.057, 0.071, 0.2),
+        box(0.713, 0.202, 0.062, 0.088, 0.15),
+        box(0.80, 0.0, 0.06, 0.06, 0.15),
+    ]
+    cfg = SearchConfig(
+        resolution=0.04,
+        n_sequences=16,
+        horizon=1,
+        actions="push",
+        object_tolerance=0.0,
+        keep_out_margin=0.03,
+    )
+    out = {}
+    for on in (False, True):
+        planner = SearchPlanner(
+            KinematicPushDynamics(), None, dataclasses.replace(cfg, escalate_when_stuck=on)
+        )
+        out[on] = planner.decide(objs, TARGET, SHELF, SHELF.camera(), False, rng=0)
+    safe, escalated = out[False], out[True]
+    assert safe.kind == "push" and safe.params["object"] == 2, safe.reason
+    assert safe.objective == 0.0 and STUCK not in safe.reason
+    assert escalated.kind == "push" and escalated.params["object"] in (0, 1), escalated.reason
+    assert escalated.objective < 0 and STUCK in escalated.reason
+    assert escalated.params["target_risk"] > 0
