@@ -475,6 +475,8 @@ def main(argv=None) -> int:
                 find_steps=float(np.mean(fs)) if fs else float("nan"),
                 grasp_steps=float(np.mean(gs)) if gs else float("nan"),
                 plan_ms=float(np.mean([r["plan_ms_mean"] for r in rs])) if rs else float("nan"),
+                near_wall=[r["grasped"] for r in rs if r["target_wall_gap"] < NEAR_WALL],
+                elsewhere=[r["grasped"] for r in rs if r["target_wall_gap"] >= NEAR_WALL],
                 thesis=dict(find=th[0], grasp=th[1], find_steps=th[2], grasp_steps=th[3]),
             )
             rows.append(row)
@@ -485,15 +487,12 @@ def main(argv=None) -> int:
                 f"{th[1]:6.3f} {row['find_steps']:7.2f} {th[2]:5.2f} {row['grasp_steps']:7.2f} "
                 f"{th[3]:5.2f} {row['plan_ms']:8.0f}"
             )
-    for m in args.methods:
-        for n in args.objects:
-            rs = [r for r in results if r["method"] == m and r["n_objects"] == n]
-            near = [r["grasped"] for r in rs if r["target_wall_gap"] < NEAR_WALL]
-            far = [r["grasped"] for r in rs if r["target_wall_gap"] >= NEAR_WALL]
-            print(
-                f"{m} n={n}: target within {NEAR_WALL * 100:.0f} cm of a side wall "
-                f"{sum(near)}/{len(near)} grasped, elsewhere {sum(far)}/{len(far)}"
-            )
+    for row in rows:
+        near, far = row["near_wall"], row["elsewhere"]
+        print(
+            f"{row['method']} n={row['n_objects']}: target within {NEAR_WALL * 100:.0f} cm of a "
+            f"side wall {sum(near)}/{len(near)} grasped, elsewhere {sum(far)}/{len(far)}"
+        )
     reasons: dict[str, int] = {}
     for r in results:
         key = r["reason"].split(":")[0]

@@ -149,9 +149,10 @@ class SearchPlanner:
         it against a wall, out of every grasp, seed 2500), or when the target is seen and no
         sequence of the others makes it graspable in a predicted scene: a blocker beside the
         target may be movable only so, or when it is hidden and no sequence of the others
-        gains anything (:attr:`SearchConfig.escalate_when_stuck`) (ours). A seen target is never in the way of a pushed object: only the hand may pass
-        by it. When even those leave no valid action, which ends the episode, the decision
-        tries the last resort of :attr:`SearchConfig.last_resort_tolerances` first."""
+        gains anything (:attr:`SearchConfig.escalate_when_stuck`) (ours). A seen target is
+        never in the way of a pushed object: only the hand may pass by it. When even those
+        leave no valid action, which ends the episode, the decision tries the last resort of
+        :attr:`SearchConfig.last_resort_tolerances` first."""
         if target_visible and target_pose is None:
             raise ValidationError("target_pose is required when target_visible is true")
         rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
