@@ -254,6 +254,10 @@ def run_episode(task: dict) -> dict:
         "idle": sum(e.message.endswith(f"({NOTHING_MOVED})") for e in res.events),
         "last_resort": sum(LAST_RESORT in e.params.get("reason", "") for e in res.events),
         "stuck": sum(STUCK in e.params.get("reason", "") for e in res.events),
+        "upright": sum(
+            bool(e.params.get("upright")) and not e.message.startswith("refused")
+            for e in res.events
+        ),
         "grasp_check_ms": float(
             np.mean(
                 [
@@ -502,7 +506,8 @@ def main(argv=None) -> int:
         f"actions the simulator refused: {sum(r['refused'] for r in results)}, executed but "
         f"moved nothing: {sum(r.get('idle', 0) for r in results)}, last-resort decisions: "
         f"{sum(r.get('last_resort', 0) for r in results)}, decisions that found no safe gain: "
-        f"{sum(r.get('stuck', 0) for r in results)}, in "
+        f"{sum(r.get('stuck', 0) for r in results)}, upright pushes executed: "
+        f"{sum(r.get('upright', 0) for r in results)}, in "
         f"{len(results)} episodes; grasp executability check (SimGraspCheck) "
         f"{np.mean([r['grasp_check_ms'] for r in results if r['grasp_check_ms'] > 0] or [0]):.0f}"
         " ms per visible step"

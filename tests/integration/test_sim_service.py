@@ -110,6 +110,8 @@ def test_push_outside_the_workspace_is_400_naming_the_problem_then_service_answe
     assert "push start p" in r.json()["detail"] and "out of workspace" in r.json()["detail"]
     with pytest.raises(sdk.BadRequestError, match="out of workspace"):
         client.sim_push([0.6, 0.0, 0.02], [0.2, 0.0, 0.0])
+    with pytest.raises(sdk.BadRequestError, match="shelf scene only"):  # upright: shelf only
+        client.sim_push([0.40, 0.0, 0.02], [0.1, 0.0, 0.0], upright=True)
     after = client.sim_state()  # still answering, and nothing moved
     assert after.joint_positions == before.state.joint_positions
 

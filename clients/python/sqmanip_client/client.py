@@ -235,10 +235,11 @@ class Client:
         resp = self._send("POST", "/sim/observe", json=body, params={"format": "npz"})
         return sim.observation_from_npz(resp.content)
 
-    def sim_push(self, p: Any, v: Any) -> SimActionResult:
+    def sim_push(self, p: Any, v: Any, upright: bool = False) -> SimActionResult:
         """Push from ``p (3,)`` by ``v (3,)`` (world frame, m); refused pushes raise
-        BadRequestError with the reason (e.g. out of workspace)."""
-        body = {"p": sim.vec3(p, "p"), "v": sim.vec3(v, "v")}
+        BadRequestError with the reason (e.g. out of workspace). ``upright`` (shelf only) turns
+        the hand on its side to fit beside an object near a side board."""
+        body = {"p": sim.vec3(p, "p"), "v": sim.vec3(v, "v"), "upright": bool(upright)}
         return sim_action_from_json(self._send("POST", "/sim/push", json=body).json())
 
     def sim_grasp(self, pose: Any, width: float) -> SimActionResult:
@@ -448,8 +449,8 @@ class AsyncClient:
         resp = await self._send("POST", "/sim/observe", json=body, params={"format": "npz"})
         return sim.observation_from_npz(resp.content)
 
-    async def sim_push(self, p: Any, v: Any) -> SimActionResult:
-        body = {"p": sim.vec3(p, "p"), "v": sim.vec3(v, "v")}
+    async def sim_push(self, p: Any, v: Any, upright: bool = False) -> SimActionResult:
+        body = {"p": sim.vec3(p, "p"), "v": sim.vec3(v, "v"), "upright": bool(upright)}
         return sim_action_from_json((await self._send("POST", "/sim/push", json=body)).json())
 
     async def sim_grasp(self, pose: Any, width: float) -> SimActionResult:

@@ -264,6 +264,11 @@ class SimPushBody(BaseModel):
     model_config = ConfigDict(extra="forbid")
     p: Vec3 = Field(description="Push start point, world frame (m).")
     v: Vec3 = Field(description="Push displacement, world frame (m).")
+    upright: bool = Field(
+        default=False,
+        description="Shelf only: the hand turned on its side (its 20 cm vertical), to fit beside "
+        "an object near a side board; p at least 10.2 cm above the floor.",
+    )
 
 
 class SimGraspBody(BaseModel):

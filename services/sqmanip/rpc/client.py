@@ -151,9 +151,9 @@ class RemoteSimulator:
         )
         return convert.observation_from_proto(self._call("Observe", msg))
 
-    def push(self, p_start, v):
+    def push(self, p_start, v, upright: bool = False):
         return convert.action_result_from_proto(
-            self._call("Push", convert.push_request_to_proto(p_start, v))
+            self._call("Push", convert.push_request_to_proto(p_start, v, upright))
         )
 
     def grasp(self, pose, width: float):

@@ -767,16 +767,16 @@ def _required_pose(msg: Any, field: str) -> np.ndarray:
     return pose_from_proto(getattr(msg, field))
 
 
-def push_request_to_proto(p, v) -> sim_pb.PushRequest:
-    return sim_pb.PushRequest(p=vec3_to_proto(p), v=vec3_to_proto(v))
+def push_request_to_proto(p, v, upright: bool = False) -> sim_pb.PushRequest:
+    return sim_pb.PushRequest(p=vec3_to_proto(p), v=vec3_to_proto(v), upright=bool(upright))
 
 
-def push_request_from_proto(msg: sim_pb.PushRequest) -> tuple[np.ndarray, np.ndarray]:
-    """PushRequest -> ``(p (3,), v (3,))``; both are required."""
+def push_request_from_proto(msg: sim_pb.PushRequest) -> tuple[np.ndarray, np.ndarray, bool]:
+    """PushRequest -> ``(p (3,), v (3,), upright)``; ``p`` and ``v`` are required."""
     for field in ("p", "v"):
         if not msg.HasField(field):
             raise ValidationError(f"{field}: required (x, y, z in metres, world frame)")
-    return np.array(vec3_from_proto(msg.p)), np.array(vec3_from_proto(msg.v))
+    return np.array(vec3_from_proto(msg.p)), np.array(vec3_from_proto(msg.v)), msg.upright
 
 
 def grasp_request_to_proto(pose: np.ndarray, width: float) -> sim_pb.GraspRequest:

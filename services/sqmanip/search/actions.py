@@ -63,6 +63,12 @@ class Push:
             np.array([0.0, direction * distance, 0.0]),
         )
 
+    @property
+    def upright(self) -> bool:
+        """The hand is turned on its side, its closing axis vertical
+        (:meth:`ActionSampler.push_poses`)."""
+        return abs(float(self.gripper_pose[2, 1])) > 0.9
+
     def as_vector(self) -> np.ndarray:
         """``(p, v)`` of the pushing dynamics model, (6,)."""
         return np.concatenate([self.start, self.displacement])
@@ -131,6 +137,10 @@ class SQPDNetDynamics:
                     out[ks[:, None], sub[None, :]] = pred.to(out.dtype)
         out[..., 2, 3] += self.floor_z
         return out
+
+
+UPRIGHT_FLOOR_GAP = 0.01
+"""Clearance (m) of an upright hand's palm above the floor board (ours)."""
 
 
 class KinematicPushDynamics:
@@ -300,6 +310,14 @@ class ActionSampler:
     ) -> list[tuple[int, np.ndarray, np.ndarray]]:
         """Collision-free ``(direction, gripper pose, start point)`` for pushing object ``i``.
 
+        The pose of 5.4.4 first: the closing axis along the push, the hand pitched
+        ``push_tilt_deg`` down. Its 20 cm palm then runs across the push, so it needs about
+        13 cm beside the object. Where it does not fit, the hand turned on its side
+        (:attr:`Push.upright`) is tried: its 6.3 cm thickness across the push, the palm upright
+        and clear of the floor (the simulator pushes level in the shelf, so the tilt is left
+        out). It reaches objects 10 cm from a side board (ours; the simulator needs 15 cm for
+        the other pose).
+
         With ``keep_out (Q, 3)`` discs where the target may stand, a pose is also dropped when
         the closed hand, moving in from the shelf front along +x to it (the simulator's
         pre-push path), passes through a disc below the target's top: the pusher would knock
@@ -308,24 +326,46 @@ class ActionSampler:
         c = scene.poses[i, :3, 3].double().numpy()
         half = world_half_extents(scene)[i].double().numpy()
         tilt = math.radians(cfg.push_tilt_deg)
-        out, poses = [], []
+        out = []
         for direction in (1, -1):
             u = np.array([0.0, float(direction), 0.0])
-            z = np.array([math.cos(tilt), 0.0, -math.sin(tilt)])
-            y = u
-            x = np.cross(y, z)
-            T = np.eye(4)
-            T[:3, :3] = np.stack([x, y, z], -1)
-            tcp = c - u * (half[1] + cfg.push_gap + g.finger_thickness)
-            tcp[2] = max(c[2], self.shelf.bottom_z + 0.03)
-            T[:3, 3] = tcp
-            out.append((direction, T, tcp))
-            poses.append(T)
-        poses_t = torch.as_tensor(np.stack(poses))
-        free = self._free(scene, i, self.closed, poses_t)
+            level = self._push_pose(
+                i, scene, u,
+                z=np.array([math.cos(tilt), 0.0, -math.sin(tilt)]),
+                y=u,
+                offset=half[1] + cfg.push_gap + g.finger_thickness,
+                height=max(c[2], self.shelf.bottom_z + 0.03),
+                keep_out=keep_out,
+            )  # fmt: skip
+            upright = None
+            if level is None and cfg.upright_push:
+                upright = self._push_pose(
+                    i, scene, u,
+                    z=np.array([1.0, 0.0, 0.0]),
+                    y=np.array([0.0, 0.0, 1.0]),
+                    offset=half[1] + cfg.push_gap + g.palm_size[0] / 2,
+                    height=self.shelf.bottom_z + g.palm_size[1] / 2 + UPRIGHT_FLOOR_GAP,
+                    keep_out=keep_out,
+                )  # fmt: skip
+            pose = level if level is not None else upright
+            if pose is not None:
+                out.append((direction, *pose))
+        return out
+
+    def _push_pose(self, i, scene, u, z, y, offset, height, keep_out):
+        """``(gripper pose, start point)`` with axes ``y``, ``z`` and the tool ``offset`` back
+        from object ``i``'s centre along ``-u`` at ``height``; ``None`` when the closed hand
+        there is not free (or touches ``keep_out``, see :meth:`push_poses`)."""
+        T = np.eye(4)
+        T[:3, :3] = np.stack([np.cross(y, z), y, z], -1)
+        tcp = scene.poses[i, :3, 3].double().numpy() - u * offset
+        tcp[2] = height
+        T[:3, 3] = tcp
+        T_t = torch.as_tensor(T[None])
+        free = self._free(scene, i, self.closed, T_t)
         if keep_out is not None and keep_out.numel():
-            free &= ~self._touches_keep_out(self.closed, poses_t, keep_out, sweep=True)
-        return [o for o, ok in zip(out, free.tolist(), strict=True) if ok]
+            free &= ~self._touches_keep_out(self.closed, T_t, keep_out, sweep=True)
+        return (T, tcp) if bool(free[0]) else None
 
     def _touches_keep_out(
         self, pts, poses: torch.Tensor, keep_out: torch.Tensor, sweep: bool = False

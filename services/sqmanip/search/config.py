@@ -121,6 +121,16 @@ class SearchConfig:
     push_tilt_deg: float = 30.0
     push_gap: float = 0.01
     push_distances: tuple[float, ...] = (0.05, 0.10, 0.15)
+    upright_push: bool = True
+    """Where the hand of 5.4.4 has no room beside an object, push with it turned on its side
+    (:meth:`.actions.ActionSampler.push_poses`): its 20 cm palm upright, 6.3 cm across the
+    push. In the simulator the level hand needs about 15 cm between an object and a side
+    board, the upright one 9.5 cm; between objects it fits where the level palm would reach
+    over the neighbour (ours). R-Search-for-Grasp on the seed-2700 scenes, paired against
+    ``False`` (the committed run of the planner before): 25/21/21/13 of 30 grasped at 2/4/6/8
+    objects against 24/20/19/12 (11 won, 6 lost); the simulator refused 122 actions against 82
+    (upright pushes whose wrist meets a board or needs a joint flip; a refusal costs no step)
+    (``benchmarks/results/search_r_sfg_seed2700_30x_upright.json``)."""
     keep_out_margin: float = 0.01
     """Where the target may stand (``f = 1``) is kept clear of pushed objects, the pusher and
     placed objects with this margin (m) beyond the target's radius: the target stands anywhere

@@ -346,7 +346,9 @@ class EpisodeRunner:
         p = d.params
         try:
             if d.kind == "push":
-                r = self.sim.push(np.asarray(p["start"]), np.asarray(p["displacement"]))
+                r = self.sim.push(
+                    np.asarray(p["start"]), np.asarray(p["displacement"]), p.get("upright", False)
+                )
             else:
                 r = self.sim.pick_and_place(
                     sim_tool_pose(np.asarray(p["grasp_pose"])),

@@ -132,7 +132,9 @@ def as_width(value) -> float:
 # --- tool poses -----------------------------------------------------------------------------------
 
 
-def push_tool_rotation(v: np.ndarray, yaw_offset: float = 0.0, down: bool = True) -> np.ndarray:
+def push_tool_rotation(
+    v: np.ndarray, yaw_offset: float = 0.0, down: bool = True, upright: bool = False
+) -> np.ndarray:
     """Tool orientation of a push (Fig. 4.6): closed gripper, tool z pointing down, tool x along
     the horizontal push direction (the fingers' broad side faces the motion), ``yaw_offset``
     (0 or pi, same finger geometry) chosen by the caller for the joint limits.
@@ -141,7 +143,16 @@ def push_tool_rotation(v: np.ndarray, yaw_offset: float = 0.0, down: bool = True
     ``yaw_offset = pi``), so the closing axis (tool y) lies across the shelf along the push. The
     search planner's pusher model pitches this tool 30 deg down (5.4.4); executing that tilt
     here was tried: the refused actions quadrupled (IK flips, collisions; see the issue 10 note).
+
+    With ``upright`` (shelf only) the hand is turned 90 deg about its approach: tool y (the
+    closing axis) points up (down for ``yaw_offset = pi``) and tool x along the push, so the
+    hand's 20 cm runs vertically and only its 6.3 cm thickness lies across the push. It fits
+    where the level hand does not: beside an object 10 cm from a side board, against 15 cm.
     """
+    if upright and not down:
+        z = np.array([1.0, 0.0, 0.0])
+        y = np.array([0.0, 0.0, 1.0]) * (1 if yaw_offset == 0 else -1)
+        return np.stack([np.cross(y, z), y, z], axis=1)
     if down:
         d = np.array([v[0], v[1], 0.0])
         yaw = (np.arctan2(d[1], d[0]) if np.linalg.norm(d) > 1e-9 else 0.0) + yaw_offset

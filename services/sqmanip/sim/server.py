@@ -116,8 +116,10 @@ class SimulatorServicer(sim_pb2_grpc.SimulatorServicer):
         return msg
 
     async def Push(self, request, context: grpc.aio.ServicerContext):  # noqa: N802
-        p, v = convert.push_request_from_proto(request)
-        return await self._run(lambda: convert.action_result_to_proto(self._sim.push(p, v)))
+        p, v, upright = convert.push_request_from_proto(request)
+        return await self._run(
+            lambda: convert.action_result_to_proto(self._sim.push(p, v, upright))
+        )
 
     async def Grasp(self, request, context: grpc.aio.ServicerContext):  # noqa: N802
         pose, width = convert.grasp_request_from_proto(request)

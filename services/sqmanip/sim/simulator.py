@@ -127,15 +127,20 @@ def check_in_region(x: np.ndarray, bounds: np.ndarray, name: str, region: str) -
 
 
 def push_tool_poses(
-    p0: np.ndarray, v: np.ndarray, yaw_offset: float, shelf: ShelfGeometry | None = None
+    p0: np.ndarray,
+    v: np.ndarray,
+    yaw_offset: float,
+    shelf: ShelfGeometry | None = None,
+    upright: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Tool poses ``(pre, start, end, post)`` (4 x 4, world) of a push from ``p0`` along ``v``
     with the Fig. 4.6 orientation (:func:`.actions.push_tool_rotation`): on the tabletop the
     pre-push and post-push poses are above the start and the end (at 0.25 m, at least 5 cm
     higher); in the shelf (``shelf`` given) 12 cm back along the tool z axis (level, -x), and
     at least out to 2 cm before the opening: from a pose deep inside, the joint-space line home
-    swung the arm through a side wall (a third of the refused shelf pushes)."""
-    R = push_tool_rotation(v, yaw_offset, down=shelf is None)
+    swung the arm through a side wall (a third of the refused shelf pushes). ``upright``: the
+    hand turned on its side (:func:`.actions.push_tool_rotation`), in the shelf only."""
+    R = push_tool_rotation(v, yaw_offset, down=shelf is None, upright=upright)
     T_start = tool_pose(R, p0)
     T_end = tool_pose(R, p0 + v)
     if shelf is not None:
@@ -610,14 +615,16 @@ class Simulator:
 
     # --- actions ---------------------------------------------------------------------------------
 
-    def push(self, p_start, v) -> ActionResult:
+    def push(self, p_start, v, upright: bool = False) -> ActionResult:
         """Push (Ch. 4.5): from home to the pre-push pose (:func:`push_tool_poses`), the tool
         tip to ``p`` with the Fig. 4.6 orientation, then to ``p + v`` through
         ``push_via_points`` via points at ``push_speed``, back to the post-push pose and home.
         In the shelf the moves to ``p`` and back go along straight tool lines
         (:meth:`_tool_line`); on the tabletop the pre- and post-push poses are right above the
         start and the end, and the joint-space moves between them (which the Table 4.6 runs and
-        the SQPD-Net data used) are kept."""
+        the SQPD-Net data used) are kept. ``upright`` (shelf only) turns the hand on its side,
+        its 20 cm vertical (:func:`.actions.push_tool_rotation`): ``p`` must then be at least
+        half that above the floor."""
         r = self._require_robot()
         cfg = self.config
         p0 = as_point(p_start, "p")
@@ -627,12 +634,14 @@ class Simulator:
         self._in_workspace(p0 + v, "push end p + v")
         self._check_idle()
         shelf = self._spec.kind == "shelf"
+        if upright and not shelf:
+            raise ValidationError("upright pushes are for the shelf scene only")
         q_home = self.home
         plan = None
         errors = []
         for yaw in (0.0, np.pi):
             T_pre, T_start, T_end, T_post = push_tool_poses(
-                p0, v, yaw, cfg.shelf if shelf else None
+                p0, v, yaw, cfg.shelf if shelf else None, upright
             )
             R = T_start[:3, :3]
             try:

@@ -122,12 +122,14 @@ class Observation(_message.Message):
     def __init__(self, camera: _Optional[str] = ..., intrinsics: _Optional[_Union[CameraIntrinsics, _Mapping]] = ..., camera_pose: _Optional[_Union[_common_pb2.Pose, _Mapping]] = ..., height: _Optional[int] = ..., width: _Optional[int] = ..., depth: _Optional[bytes] = ..., rgb: _Optional[bytes] = ..., segmentation: _Optional[bytes] = ..., cloud: _Optional[_Union[_common_pb2.PointCloud, _Mapping]] = ..., point_pixels: _Optional[bytes] = ..., objects: _Optional[_Iterable[_Union[ObjectState, _Mapping]]] = ..., time: _Optional[float] = ...) -> None: ...
 
 class PushRequest(_message.Message):
-    __slots__ = ("p", "v")
+    __slots__ = ("p", "v", "upright")
     P_FIELD_NUMBER: _ClassVar[int]
     V_FIELD_NUMBER: _ClassVar[int]
+    UPRIGHT_FIELD_NUMBER: _ClassVar[int]
     p: _common_pb2.Vector3
     v: _common_pb2.Vector3
-    def __init__(self, p: _Optional[_Union[_common_pb2.Vector3, _Mapping]] = ..., v: _Optional[_Union[_common_pb2.Vector3, _Mapping]] = ...) -> None: ...
+    upright: bool
+    def __init__(self, p: _Optional[_Union[_common_pb2.Vector3, _Mapping]] = ..., v: _Optional[_Union[_common_pb2.Vector3, _Mapping]] = ..., upright: _Optional[bool] = ...) -> None: ...
 
 class GraspRequest(_message.Message):
     __slots__ = ("pose", "width")

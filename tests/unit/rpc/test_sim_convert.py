@@ -159,10 +159,13 @@ def test_action_requests_round_trip_and_require_their_poses() -> None:
         _wire(convert.pick_and_place_request_to_proto(T, 0.05, T @ np.diag([1, 1, 1, 1.0])))
     )
     np.testing.assert_allclose(place, T, atol=1e-12)
-    p, v = convert.push_request_from_proto(
+    p, v, upright = convert.push_request_from_proto(
         _wire(convert.push_request_to_proto([1, 2, 3], [4, 5, 6]))
     )
-    assert p.tolist() == [1, 2, 3] and v.tolist() == [4, 5, 6]
+    assert p.tolist() == [1, 2, 3] and v.tolist() == [4, 5, 6] and upright is False
+    assert convert.push_request_from_proto(
+        _wire(convert.push_request_to_proto([1, 2, 3], [4, 5, 6], upright=True))
+    )[2]
     with pytest.raises(ValidationError, match="pose: required"):
         convert.grasp_request_from_proto(sim_pb2.GraspRequest(width=0.05))
     with pytest.raises(ValidationError, match="place_pose: required"):

@@ -242,14 +242,42 @@ def test_pusher_path_keeps_out_of_where_the_target_may_stand():
     assert [p[0] for p in low.push_poses(scene, 0, beside)] == [1, -1]
 
 
+def test_the_hand_turns_upright_where_the_level_one_has_no_room():
+    """Beside a box 9.5 cm from the left board the level hand (20 cm across the push) meets the
+    board, so the push to -y starts with the hand upright: its palm clear of the floor, its
+    6.3 cm thickness between box and board. The push ends no nearer the board than a level one
+    could (:meth:`SearchPlanner.feasible`), and with ``upright_push`` off there is no such push.
+    Where the level hand fits, it is used."""
+    from sqmanip.search import ActionSampler
+    from sqmanip.search.actions import Push
+
+    half_w = SHELF.inner_width / 2
+    scene = SceneState.from_objects([box(0.65, half_w - 0.095 - 0.03, 0.06, 0.06, 0.15)])
+    sampler = ActionSampler(SHELF, CFG)
+    poses = {d: (T, tcp) for d, T, tcp in sampler.push_poses(scene, 0)}
+    assert set(poses) == {1, -1}
+    T, tcp = poses[-1]
+    push = Push.sideways(0, -1, 0.10, T, tcp)
+    assert push.upright and not Push.sideways(0, 1, 0.10, *poses[1]).upright
+    assert tcp[2] - SHELF.bottom_z > sampler.gripper.palm_size[1] / 2
+    assert tcp[1] + sampler.gripper.palm_size[0] / 2 < half_w
+    planner = SearchPlanner(KinematicPushDynamics(), None, CFG)
+    assert planner.feasible(push, SHELF)
+    assert not planner.feasible(Push.sideways(0, 1, 0.05, T, tcp), SHELF)  # to the board
+    off = ActionSampler(SHELF, dataclasses.replace(CFG, upright_push=False))
+    assert [d for d, *_ in off.push_poses(scene, 0)] == [1]
+
+
 def test_action_tolerance_opens_a_gap_the_hand_just_misses():
     """A neighbour 1.75 cm from the pushed box blocks the hand at both push starts with exact
     shapes; with the other objects' level half sizes 5 mm smaller (recognized boxes run wide)
-    the push to -y is free, and a neighbour 1 cm away still blocks it."""
+    the push to -y is free, and a neighbour 1 cm away still blocks it (the hand of 5.4.4; the
+    upright one is tested below)."""
     from sqmanip.search import ActionSampler
 
-    exact = ActionSampler(SHELF, dataclasses.replace(CFG, action_tolerance=0.0))
-    tolerant = ActionSampler(SHELF, dataclasses.replace(CFG, action_tolerance=0.005))
+    level = dataclasses.replace(CFG, upright_push=False)
+    exact = ActionSampler(SHELF, dataclasses.replace(level, action_tolerance=0.0))
+    tolerant = ActionSampler(SHELF, dataclasses.replace(level, action_tolerance=0.005))
     pushed = box(0.60, 0.0, 0.06, 0.06, 0.15)
     near = SceneState.from_objects([pushed, box(0.60, -0.0775, 0.06, 0.06, 0.15)])
     assert exact.push_poses(near, 0) == []
@@ -713,11 +741,14 @@ def test_a_pick_whose_first_grasp_is_too_low_uses_a_higher_one_before_no_valid_a
 
 def test_a_decision_loosens_the_clearances_before_it_finds_no_valid_action():
     """Two boxes 1 cm apart block each other's pusher at every start (the palm reaches 10 cm
-    along the push). Rather than end the episode with "no valid action", a decision tries
-    again with :attr:`SearchConfig.last_resort_tolerances` (the robot still checks the
-    action against the objects as they are); with none it gives up as before."""
+    along the push; the upright hand is off here). Rather than end the episode with "no valid
+    action", a decision tries again with :attr:`SearchConfig.last_resort_tolerances` (the
+    robot still checks the action against the objects as they are); with none it gives up as
+    before."""
     torch.set_num_threads(1)
-    cfg = SearchConfig(resolution=0.04, n_sequences=6, horizon=1, actions="push")
+    cfg = SearchConfig(
+        resolution=0.04, n_sequences=6, horizon=1, actions="push", upright_push=False
+    )
     objs = [box(0.60, 0.0, 0.06, 0.06, 0.15), box(0.60, -0.07, 0.06, 0.06, 0.15)]
     strict = SearchPlanner(
         KinematicPushDynamics(), None, dataclasses.replace(cfg, last_resort_tolerances=())

@@ -387,6 +387,32 @@ def test_deep_shelf_push_moves_the_hand_in_along_a_straight_line(sim):
     assert r.after.objects[0].position[1] > b.position[1] + 0.05
 
 
+def test_an_upright_hand_pushes_a_box_away_from_a_side_board(sim):
+    """A box whose side is 10 cm from the left board: the level pusher (20 cm across the push)
+    is refused beside it, the hand turned on its side (6.3 cm across) pushes it to -y without
+    tipping it. Upright pushes are for the shelf only."""
+    s = sim.config.shelf
+    half_w = s.inner_width / 2
+    b = box((0.06, 0.06, 0.14), s.front_x + 0.10, half_w - 0.10 - 0.03)
+    b = dataclasses.replace(b, position=(b.position[0], b.position[1], s.bottom_z + 0.0701))
+    sim.reset(SceneSpec(kind="shelf", objects=(b,), seed=0))
+    v = np.array([0.0, -0.10, 0.0])
+    level = np.array([b.position[0], b.position[1] + 0.03 + 0.01 + 0.0264, b.position[2]])
+    with pytest.raises(PreconditionError, match="shelf_left"):
+        sim.push(level, v)
+    upright = np.array([b.position[0], b.position[1] + 0.03 + 0.01 + 0.0316, s.bottom_z + 0.112])
+    R = push_tool_poses(upright, v, 0.0, s, upright=True)[1][:3, :3]
+    assert abs(R[2, 1]) == pytest.approx(1.0)  # closing axis vertical
+    r = sim.push(upright, v, upright=True)
+    assert r.success, r.message
+    after = r.after.objects[0]
+    assert after.position[1] < b.position[1] - 0.05
+    assert after.position[2] == pytest.approx(b.position[2], abs=0.01)  # still standing
+    sim.reset(SceneSpec(kind="tabletop", seed=0))
+    with pytest.raises(ValidationError, match="shelf scene only"):
+        sim.push(np.array([0.5, 0.0, 0.05]), v, upright=True)
+
+
 def test_grasp_through_the_shelf_top_is_refused(sim):
     sim.reset(SceneSpec(kind="shelf"))
     s = sim.config.shelf

@@ -152,7 +152,7 @@ async def observe(
 @router.post("/push", response_model=SimActionOut, summary="Push (Ch. 4.5)", responses=_ERRORS)
 async def push(request: Request, body: SimPushBody, sim: SimDep, settings: SettingsDep):
     """Tool tip to ``p`` with the Fig. 4.6 orientation, then to ``p + v`` through 10 via points."""
-    msg = convert.push_request_to_proto(body.p, body.v)
+    msg = convert.push_request_to_proto(body.p, body.v, body.upright)
     response = await sim.Push(msg, **_call_kwargs(request, settings))
     return sim_action_out(convert.action_result_from_proto(response))
 
