@@ -312,11 +312,11 @@ class ActionSampler:
 
         The pose of 5.4.4 first: the closing axis along the push, the hand pitched
         ``push_tilt_deg`` down. Its 20 cm palm then runs across the push, so it needs about
-        13 cm beside the object. Where it does not fit, the hand turned on its side
-        (:attr:`Push.upright`) is tried: its 6.3 cm thickness across the push, the palm upright
-        and clear of the floor (the simulator pushes level in the shelf, so the tilt is left
-        out). It reaches objects 10 cm from a side board (ours; the simulator needs 15 cm for
-        the other pose).
+        12.5 cm beside the object (15 cm from a side board in the simulator). Where it does not
+        fit, the hand turned on its side (:attr:`Push.upright`) is tried: its 6.3 cm thickness
+        across the push, the palm upright and clear of the floor (the simulator pushes level in
+        the shelf, so the tilt is left out). The simulator executes it 9.5 cm from a side board
+        (ours; see :data:`.mpc.UPRIGHT_WALL_GAP`).
 
         With ``keep_out (Q, 3)`` discs where the target may stand, a pose is also dropped when
         the closed hand, moving in from the shelf front along +x to it (the simulator's
