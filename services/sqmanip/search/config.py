@@ -129,10 +129,11 @@ class SearchConfig:
     over the neighbour (ours). R-Search-for-Grasp on the seed-2700 scenes, paired against
     ``False`` (the committed run of the planner before): 25/21/21/13 of 30 grasped at 2/4/6/8
     objects against 24/20/19/12 (11 won, 6 lost); on the seed-2500 scenes 21/18 at 6/8
-    objects against 17/17 (9 won, 4 lost; 79 upright pushes executed in the 60 episodes).
-    Over the 180 paired episodes 119 against 109, 20 won and 10 lost. The simulator refused
-    more actions (215 against 135: upright pushes whose wrist meets a board or needs a joint
-    flip; a refusal costs a re-plan, not a step)
+    objects against 17/17 (9 won, 4 lost; 79 upright pushes executed in the 60 episodes); on
+    the seed-2300 scenes 25/28 at 2/4 objects against 23/28 (4 won, 2 lost). Over the 240
+    paired episodes 172 against 160, 24 won and 12 lost. The simulator refused more actions
+    on 2700 and 2500 (215 against 135: upright pushes whose wrist meets a board or needs a
+    joint flip; a refusal costs a re-plan, not a step)
     (``benchmarks/results/search_r_sfg_*_30x_upright.json``)."""
     keep_out_margin: float = 0.01
     """Where the target may stand (``f = 1``) is kept clear of pushed objects, the pusher and
