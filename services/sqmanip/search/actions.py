@@ -32,6 +32,7 @@ from sqmanip.geometry import Superquadric
 from sqmanip.geometry.sampling import sample_surface
 from sqmanip.grasping import PANDA_HAND, GripperSpec, RuleOptions, gripper_points
 from sqmanip.grasping.rule_based import rule_based_candidates
+from sqmanip.sim.actions import push_tool_rotation
 
 from .config import SearchConfig
 from .shelf import Obstacles, SceneState, ShelfSpec, cluster_points
@@ -329,10 +330,10 @@ class ActionSampler:
         out = []
         for direction in (1, -1):
             u = np.array([0.0, float(direction), 0.0])
+            z = np.array([math.cos(tilt), 0.0, -math.sin(tilt)])
             level = self._push_pose(
                 i, scene, u,
-                z=np.array([math.cos(tilt), 0.0, -math.sin(tilt)]),
-                y=u,
+                R=np.stack([np.cross(u, z), u, z], -1),
                 offset=half[1] + cfg.push_gap + g.finger_thickness,
                 height=max(c[2], self.shelf.bottom_z + 0.03),
                 keep_out=keep_out,
@@ -341,8 +342,7 @@ class ActionSampler:
             if level is None and cfg.upright_push:
                 upright = self._push_pose(
                     i, scene, u,
-                    z=np.array([1.0, 0.0, 0.0]),
-                    y=np.array([0.0, 0.0, 1.0]),
+                    R=push_tool_rotation(u, down=False, upright=True),  # as the robot pushes
                     offset=half[1] + cfg.push_gap + g.palm_size[0] / 2,
                     height=self.shelf.bottom_z + g.palm_size[1] / 2 + UPRIGHT_FLOOR_GAP,
                     keep_out=keep_out,
@@ -352,12 +352,12 @@ class ActionSampler:
                 out.append((direction, *pose))
         return out
 
-    def _push_pose(self, i, scene, u, z, y, offset, height, keep_out):
-        """``(gripper pose, start point)`` with axes ``y``, ``z`` and the tool ``offset`` back
+    def _push_pose(self, i, scene, u, R, offset, height, keep_out):
+        """``(gripper pose, start point)`` with rotation ``R`` and the tool ``offset`` back
         from object ``i``'s centre along ``-u`` at ``height``; ``None`` when the closed hand
         there is not free (or touches ``keep_out``, see :meth:`push_poses`)."""
         T = np.eye(4)
-        T[:3, :3] = np.stack([np.cross(y, z), y, z], -1)
+        T[:3, :3] = R
         tcp = scene.poses[i, :3, 3].double().numpy() - u * offset
         tcp[2] = height
         T[:3, 3] = tcp
