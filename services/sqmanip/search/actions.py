@@ -538,15 +538,17 @@ class ActionSampler:
         hand_keep_out: bool = True,
         pick_ok: Callable[[torch.Tensor], bool] | None = None,
         slide_keep_out: bool = True,
+        seen_target: torch.Tensor | None = None,
     ):
         """``I_p`` and ``I_g`` with their valid pushes / (grasps, spots) per object; a push is
         ``(direction, gripper pose, start, lengths)``. ``hand_keep_out=False`` lets the hand on
         its way in, ``slide_keep_out=False`` the pushed object's slide, sweep where the target
-        may stand (the fallbacks of :meth:`.mpc.SearchPlanner.decide`). An object's pick uses
-        its first collision-free grasp with a free spot that ``pick_ok`` (the robot's own IK
-        and arm checks, when known) accepts."""
+        may stand (the fallbacks of :meth:`.mpc.SearchPlanner.decide`); the hand still keeps out
+        of ``seen_target`` (``(1, 3)``, a disc about a seen target's axis): it may graze the
+        target, not come in through it. An object's pick uses its first collision-free grasp with a
+        free spot that ``pick_ok`` (the robot's own IK and arm checks, when known) accepts."""
         pushes, picks = {}, {}
-        hand_out = keep_out if hand_keep_out else None
+        hand_out = keep_out if hand_keep_out else seen_target
         slide_out = keep_out if slide_keep_out else None
         for i in range(len(scene)):
             if self.config.actions in ("both", "push"):

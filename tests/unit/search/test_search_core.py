@@ -626,6 +626,32 @@ def test_a_fallback_push_lets_the_hand_pass_where_the_target_may_stand_before_th
     assert (d.params["object"], d.params["direction"], d.params["distance"]) in hand_only
 
 
+def test_an_escalated_push_hand_passes_by_a_seen_target_not_through_it():
+    """A seen target 10 cm in front of a box: with the hand's keep-out lifted (the escalation
+    of :meth:`SearchPlanner.decide`) a push of the box whose hand comes in across the middle
+    third of the target (``seen_target``, as the planner passes it) is still dropped, one whose
+    hand passes within the keep-out margin beside it is kept."""
+    from sqmanip.search import ActionSampler
+
+    sampler = ActionSampler(SHELF, dataclasses.replace(CFG, upright_push=False))
+    scene = SceneState.from_objects([box(0.76, 0.0, 0.06, 0.06, 0.15)])
+    r = TARGET.horizontal_radius
+
+    def pushes(y, seen):
+        keep_out = torch.tensor([[0.64, y, r + 0.03]])
+        disc = keep_out.clone()
+        disc[:, 2] = r / 3
+        return sampler.candidates(scene, keep_out, False, None, True, disc if seen else None)[0]
+
+    assert pushes(0.0, seen=False) and not pushes(0.0, seen=True)  # through its centre
+    # 10 cm to the side: the push to +y passes 2.5 cm from it (the level palm is 20 cm
+    # across), inside the keep-out margin; the push to -y comes in through it
+    kept = pushes(0.10, seen=True)
+    assert kept and [p[0] for p in kept[0]] == [1]
+    keep_out = torch.tensor([[0.64, 0.10, r + 0.03]])
+    assert not sampler.candidates(scene, keep_out)[0]
+
+
 def test_refused_actions_match_within_a_tolerance_and_unreachable_ones_last():
     """The same push on the next observation starts a few mm off: it is still refused. An
     unreachable push stays refused after something moved; a colliding pick and a push that

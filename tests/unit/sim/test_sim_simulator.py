@@ -413,6 +413,23 @@ def test_an_upright_hand_pushes_a_box_away_from_a_side_board(sim):
         sim.push(np.array([0.5, 0.0, 0.05]), v, upright=True)
 
 
+def test_a_push_whose_path_from_home_flips_a_joint_is_planned_from_another_seed(sim):
+    """A cylinder 20 cm right of the middle, near the shelf front: the upright push to +y from
+    home's IK branch flips a joint on the way in (refused before); an extra seed of
+    ``plan_grasp`` gives a straight path, and the push moves the cylinder as planned."""
+    s = sim.config.shelf
+    cyl = ObjectSpec("cylinder", radius=0.03, height=0.12)
+    x, y = s.front_x + 0.06, -0.2
+    sim.reset(
+        SceneSpec(kind="shelf", objects=(cyl.with_pose((x, y, s.bottom_z + 0.0601), (0, 0, 0, 1)),))
+    )
+    r = sim.push(
+        np.array([x, y - 0.05, s.bottom_z + 0.112]), np.array([0.0, 0.10, 0.0]), upright=True
+    )
+    assert r.success, r.message
+    assert r.after.objects[0].position[1] - y == pytest.approx(0.09, abs=0.005)
+
+
 def test_grasp_through_the_shelf_top_is_refused(sim):
     sim.reset(SceneSpec(kind="shelf"))
     s = sim.config.shelf
