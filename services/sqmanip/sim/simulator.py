@@ -637,7 +637,8 @@ class Simulator:
         (seed 2900, 6 and 8 objects, with the seen-target rule of
         :meth:`sqmanip.search.ActionSampler.candidates`), paired against the committed planner
         before: 21/19 of 30 grasped against 20/20 (3 won, 3 lost), 26 refused actions against
-        64 (``benchmarks/results/search_r_sfg_6_8obj_seed2900_30x*.json``).
+        64 (``benchmarks/results/search_r_sfg_6_8obj_seed2900_30x*.json``); at 2 and 4 objects
+        27/24 against 27/25 (0 won, 1 lost; ``search_r_sfg_2_4obj_seed2900_30x*.json``).
         """
         r = self._require_robot()
         cfg = self.config
