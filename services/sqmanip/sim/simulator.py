@@ -654,9 +654,7 @@ class Simulator:
         q_home = self.home
         seeds = [None]  # home, with the IK's random restarts
         if shelf:
-            seeds += self._grasp_restart + [
-                self.kin.clamp(q_home + d) for d in self._grasp_seed_offsets
-            ]
+            seeds += self._extra_ik_seeds(q_home)
         hands = [push_tool_poses(p0, v, yaw, cfg.shelf if shelf else None, upright)
                  for yaw in (0.0, np.pi)]  # fmt: skip
         plan = None
@@ -706,6 +704,11 @@ class Simulator:
         else:
             r.move_joints(q_home)
         return self._result(True, "pushed", before, t0)
+
+    def _extra_ik_seeds(self, q: np.ndarray) -> list[np.ndarray]:
+        """The ``grasp_ik_seeds`` seeds tried after ``q``: the IK's first random restart, then
+        the fixed offsets from ``q`` (clamped to the joint limits)."""
+        return self._grasp_restart + [self.kin.clamp(q + d) for d in self._grasp_seed_offsets]
 
     def _push_chain(
         self, p0: np.ndarray, v: np.ndarray, tool_poses, seed: np.ndarray | None, shelf: bool
@@ -783,10 +786,7 @@ class Simulator:
         first: PreconditionError | None = None
         blocked: PreconditionError | None = None  # the first seed an object stopped
         tried: list[np.ndarray] = []
-        extra = self._grasp_restart + [
-            self.kin.clamp(q_start + d) for d in self._grasp_seed_offsets
-        ]
-        for k, seed in enumerate((q_start, *extra)):
+        for k, seed in enumerate((q_start, *self._extra_ik_seeds(q_start))):
             try:
                 q_pre = self._solve(T_pre, seed, "pre-grasp pose", restarts=0)
                 if any(np.abs(q_pre - q).max() < 1e-2 for q in tried):
